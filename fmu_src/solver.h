@@ -1,0 +1,38 @@
+/* Embedded ODE solvers for x' = F(t, x): the contract between the FMI glue and the integrators.
+ * The glue owns every buffer; the solvers never allocate. */
+#ifndef CEDRA_SOLVER_H
+#define CEDRA_SOLVER_H
+
+#include <stddef.h>
+
+enum solver_method { SOLVER_RK4 = 0, SOLVER_DOPRI5 = 1, SOLVER_RODAS4 = 2 };
+#define SOLVER_N_METHODS 3
+
+/* Return 0 on success; nonzero means the state cannot be evaluated (the callback has written why
+ * into its context; the solver reports failure). */
+typedef int (*solver_rhs_fn)(void *ctx, double t, const double *x, double *xdot);
+/* Dense Jacobian dF/dx, column-major n x n, at (t, x) where xdot = F(t, x) is already known. */
+typedef int (*solver_jac_fn)(void *ctx, double t, const double *x, const double *xdot, double *jac);
+
+typedef struct {
+    int method;        /* enum solver_method */
+    double tol;        /* relative and absolute tolerance of the adaptive methods */
+    double h_max;      /* largest step; RK4's fixed step */
+} solver_settings;
+
+typedef struct {       /* counts since the start of the simulation (part of the FMU state) */
+    long steps, rejected, rhs_evals, jac_evals;
+    double h_next;     /* step size proposal carried between calls (adaptive methods) */
+} solver_stats;
+
+/* doubles of workspace the method needs for a system of size n */
+size_t solver_workspace_size(int method, int n);
+
+/* Integrate from t0 to t1 (t1 > t0) in place on x. The last step is shortened to land exactly on t1.
+ * Returns 0 on success; on failure returns nonzero, leaves x at the last accepted state, and writes the reason
+ * (e.g. "step size underflow h=1e-14 at t=0.53", "NaN in the derivative at t=...") into msg. */
+int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1,
+                     solver_rhs_fn rhs, solver_jac_fn jac, void *ctx,
+                     double *work, solver_stats *stats, char *msg, size_t msg_len);
+
+#endif

@@ -1,0 +1,92 @@
+"""The contract between a symbolic model and the FMU machinery (code generation, C glue, XML).
+
+A model (the CEDRA rover for one scene, or a toy model in the tests) is handed to the FMU builder as a
+`ModelSpec`: a few CasADi functions with FIXED names and argument order (acados style), so that the
+hand-written C glue in `fmu_src/` is the same for every model, plus the tables of named quantities those
+functions read and write. Nothing here knows about FMI; `variables.py` turns a ModelSpec into the FMU's
+variable table.
+
+State of the ODE integrated by the FMU:  x = [q (nq), u (nq), z (nz)] with
+    qdot = u                         (generalized speeds are the coordinate rates)
+    M(q, par) udot = f(q, u, inp, par)
+    zdot = g(q, u, inp, par)         (integral states, e.g. the motor work)
+
+Generated functions (CasADi names = C names; every argument and result is a dense column vector/matrix,
+matrices column-major):
+    cedra_M      (q, par)               -> (M[nq x nq])
+    cedra_f      (q, u, inp, par)       -> (f[nq], g[nz])
+    cedra_rjac   (q, u, a, inp, par)    -> (dr_dq[nq x nq], dr_du[nq x nq], dg_dq[nz x nq], dg_du[nz x nq])
+                  where r = M(q) a - f(q, u): the implicit solver's Jacobian is
+                  d(udot)/dq = -M^-1 dr_dq, d(udot)/du = -M^-1 dr_du, evaluated at a = udot.
+    cedra_out    (q, u, z, inp, par)    -> (y[ny])      every output variable, in `outputs` order
+    cedra_settle (q, inp, par)          -> (res[ns], jac[ns x ns])
+                  static-equilibrium residual f(q, 0) restricted to the coordinates `settle_idx`, and its
+                  Jacobian with respect to those coordinates (Newton solve in fmi2ExitInitializationMode).
+    cedra_check  (q, u, inp, par)       -> (ok[1])  1 where the state can be evaluated (e.g. the four-bar can
+                  be assembled), 0 otherwise; the glue refuses such states with a logged reason.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+
+FUNCTION_NAMES = ("cedra_M", "cedra_f", "cedra_rjac", "cedra_out", "cedra_settle", "cedra_check")
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """One named scalar of the model's interface (a parameter, an input, an output or a start value)."""
+    name: str
+    start: float = 0.0
+    unit: str = "1"
+    description: str = ""
+    min: float | None = None
+    max: float | None = None
+    type: str = "Real"          # "Real" or "Integer" (Integer outputs are computed as reals and rounded)
+
+
+@dataclass
+class ModelSpec:
+    name: str                               # the scene name: modelIdentifier, .so and .fmu name
+    description: str
+    q_names: list[str]                      # generalized coordinates, in state order
+    z_names: list[str]                      # integral states
+    params: list[Quantity]                  # `par` vector, in order
+    inputs: list[Quantity]                  # `inp` vector, in order
+    outputs: list[Quantity]                 # `y` vector of cedra_out, in order
+    q_start: list[float]                    # default initial coordinates (design pose)
+    settle_idx: list[int]                   # coordinates solved for by the static-equilibrium Newton solve
+    start_params: dict[str, int] = field(default_factory=dict)   # FMU parameter name -> q index it sets
+    functions: dict[str, ca.Function] = field(default_factory=dict)
+    stop_time: float = 10.0
+    output_interval: float = 0.01
+    solver: dict = field(default_factory=dict)   # default solver settings: method, tol, h_max
+
+    @property
+    def nq(self) -> int:
+        return len(self.q_names)
+
+    def check(self) -> None:
+        """Raise ValueError if the functions do not follow the contract above."""
+        nq, nz, ni, npar, ny = self.nq, len(self.z_names), len(self.inputs), len(self.params), len(self.outputs)
+        ns = len(self.settle_idx)
+        expected = {
+            "cedra_M": ([nq, npar], [(nq, nq)]),
+            "cedra_f": ([nq, nq, ni, npar], [(nq, 1), (nz, 1)]),
+            "cedra_rjac": ([nq, nq, nq, ni, npar], [(nq, nq), (nq, nq), (nz, nq), (nz, nq)]),
+            "cedra_out": ([nq, nq, nz, ni, npar], [(ny, 1)]),
+            "cedra_settle": ([nq, ni, npar], [(ns, 1), (ns, ns)]),
+            "cedra_check": ([nq, nq, ni, npar], [(1, 1)]),
+        }
+        for name, (ins, outs) in expected.items():
+            fn = self.functions.get(name)
+            if fn is None:
+                raise ValueError(f"model {self.name}: function {name} missing")
+            if fn.name() != name:
+                raise ValueError(f"model {self.name}: function {name} is named {fn.name()}")
+            got_in = [fn.size1_in(i) for i in range(fn.n_in())]
+            got_out = [fn.size_out(i) for i in range(fn.n_out())]
+            if got_in != ins or [tuple(s) for s in got_out] != outs:
+                raise ValueError(f"model {self.name}: {name} has inputs {got_in} outputs {got_out}, "
+                                 f"expected {ins} {outs}")
