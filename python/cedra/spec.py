@@ -22,6 +22,11 @@ matrices column-major):
     cedra_settle (q, inp, par)          -> (res[ns], jac[ns x ns])
                   static-equilibrium residual f(q, 0) restricted to the coordinates `settle_idx`, and its
                   Jacobian with respect to those coordinates (Newton solve in fmi2ExitInitializationMode).
+    cedra_guess  (q, inp, par)          -> (q0[nq])
+                  the Newton solve's starting point: q with the settle_idx coordinates replaced by a guess that
+                  puts the model in contact with its terrain (e.g. z from the terrain height under the rover).
+                  Used only when the Boolean parameter start.settle is true (then: q = cedra_guess(q_start),
+                  then Newton on cedra_settle).
     cedra_check  (q, u, inp, par)       -> (ok[1])  1 where the state can be evaluated (e.g. the four-bar can
                   be assembled), 0 otherwise; the glue refuses such states with a logged reason.
 """
@@ -31,7 +36,7 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 
-FUNCTION_NAMES = ("cedra_M", "cedra_f", "cedra_rjac", "cedra_out", "cedra_settle", "cedra_check")
+FUNCTION_NAMES = ("cedra_M", "cedra_f", "cedra_rjac", "cedra_out", "cedra_settle", "cedra_guess", "cedra_check")
 
 
 @dataclass(frozen=True)
@@ -77,6 +82,7 @@ class ModelSpec:
             "cedra_rjac": ([nq, nq, nq, ni, npar], [(nq, nq), (nq, nq), (nz, nq), (nz, nq)]),
             "cedra_out": ([nq, nq, nz, ni, npar], [(ny, 1)]),
             "cedra_settle": ([nq, ni, npar], [(ns, 1), (ns, ns)]),
+            "cedra_guess": ([nq, ni, npar], [(nq, 1)]),
             "cedra_check": ([nq, nq, ni, npar], [(1, 1)]),
         }
         for name, (ins, outs) in expected.items():
