@@ -1,0 +1,254 @@
+"""Forms a scene's equations: restricts the 3D rover to the scene's coordinates, adds terrain and contact, and
+returns the ModelSpec (CasADi functions under the contract's fixed names, plus the named interface).
+
+Restriction (spec section 8): every one of the 17 full coordinates is either one of the scene's coordinates or
+the constant 0, so q_full = P q with a constant 0/1 matrix P. Forming Kane's equations with the scene's speeds
+as generalized speeds is the projection P' M P, P' f of the 3D equations (tested in tests/test_model_scenes.py):
+the planar model is the 3D model, not a second hand-written one.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+
+from . import parameters
+from .contact import compliant_force, contact_geometry
+from .kane import KaneSystem
+from .rover import FULL_Q, IDX, describe
+from .spec import ModelSpec, Quantity
+from .terrain import KINDS, TERRAIN_INPUTS, Terrain
+
+PLANAR_MAP = {"y": None, "yaw": None, "roll": None, "theta2": "theta1", "theta3": None, "theta6": None,
+              "gamma3": "gamma1", "gamma4": "gamma2"}
+NO_STEER_MAP = {"theta3": None, "theta6": None}
+SETTLE = ["z", "pitch", "roll", "theta1", "theta2", "theta4"]
+
+
+@dataclass(frozen=True)
+class ModelOptions:
+    dims: str = "3d"              # "2d" or "3d"
+    terrain: str = "flat"
+    steering: bool = False
+    contact: str = "compliant"
+
+
+def coordinate_map(opt: ModelOptions) -> dict[str, str | None]:
+    """For each full coordinate: the scene coordinate it equals, or None for the constant 0."""
+    if opt.dims == "2d":
+        m = PLANAR_MAP
+    elif not opt.steering:
+        m = NO_STEER_MAP
+    else:
+        m = {}
+    return {n: m.get(n, n) for n in FULL_Q}
+
+
+def projection(opt: ModelOptions) -> tuple[list[str], np.ndarray]:
+    """The scene's coordinate names and P with q_full = P q."""
+    cmap = coordinate_map(opt)
+    names = [n for n in FULL_Q if cmap[n] == n]
+    P = np.zeros((len(FULL_Q), len(names)))
+    for i, n in enumerate(FULL_Q):
+        if cmap[n] is not None:
+            P[i, names.index(cmap[n])] = 1.0
+    return names, P
+
+
+def param_table(opt: ModelOptions) -> list[Quantity]:
+    ps = parameters.ROVER + parameters.GROUND
+    if opt.steering:
+        ps = ps + parameters.SERVO
+    return ps
+
+
+def input_table(opt: ModelOptions) -> list[Quantity]:
+    ins = [Quantity(f"tau[{i}]", 0.0, "N.m", f"motor torque of wheel {i} (about its axle, positive drives forward)")
+           for i in range(1, 7)]
+    if opt.steering:
+        ins += [Quantity("steer[1]", 0.0, "rad", "commanded steering angle of wheel 5 (theta3)", -1.5, 1.5),
+                Quantity("steer[2]", 0.0, "rad", "commanded steering angle of wheel 6 (theta6)", -1.5, 1.5)]
+    ins.append(Quantity("mu", 0.8, "1", "friction coefficient wheel-ground", 0.0, 10.0))
+    ins += [TERRAIN_INPUTS[n] for n in KINDS[opt.terrain].inputs]
+    return ins
+
+
+def _out(name, unit, description, type="Real"):
+    return Quantity(name, 0.0, unit, description, type=type)
+
+
+class CedraModel:
+    """The rover's equations for one set of scene options. Symbolic pieces are public for tests."""
+
+    def __init__(self, opt: ModelOptions):
+        if opt.contact != "compliant":
+            raise ValueError(f"contact model {opt.contact!r} is not built yet (only 'compliant')")
+        self.opt = opt
+        self.q_names, self.P = projection(opt)
+        n = len(self.q_names)
+        self.q = ca.SX.sym("q", n)
+        self.u = ca.SX.sym("u", n)
+        self.params = param_table(opt)
+        self.inputs = input_table(opt)
+        self.par = ca.SX.sym("par", len(self.params))
+        self.inp = ca.SX.sym("inp", len(self.inputs))
+        p = {q.name: self.par[i] for i, q in enumerate(self.params)}
+        i_ = {q.name: self.inp[i] for i, q in enumerate(self.inputs)}
+        self.p, self.i = p, i_
+        self.qf = ca.SX(ca.DM(self.P)) @ self.q
+        tau = [i_[f"tau[{k}]"] for k in range(1, 7)]
+        steer = (i_["steer[1]"], i_["steer[2]"]) if opt.steering else None
+        self.rover = describe(self.qf, self.rate, p, tau, steer)
+        self.terrain = Terrain(opt.terrain, {n: i_[n] for n in KINDS[opt.terrain].inputs})
+        self.kane = KaneSystem(self.q, self.u, list(self.rover.bodies))
+        self.kane.add_generalized_force(ca.jacobian(self.rate(self.qf), self.u).T @ self.rover.coordinate_torques)
+        for b in self.rover.bodies:                                  # gravity: -m g Z at each mass center
+            self.kane.add_point_force(self.rate(b.position), ca.vertcat(0, 0, -b.mass * p["g"]))
+        self.contacts = []
+        for wh in self.rover.wheels:
+            geo = contact_geometry(wh.center, wh.axle, self.terrain, p["R_w"])
+            v_point = wh.velocity + ca.cross(wh.omega, geo.point - wh.center)
+            force, Fn, Fx, Fy, slip, flag = compliant_force(geo, v_point, p["ground_k"], p["ground_d"], i_["mu"],
+                                                            p["v_eps"])
+            self.kane.add_point_force(v_point, force)
+            self.contacts.append(dict(geo=geo, Fn=Fn, Fx=Fx, Fy=Fy, slip=slip, flag=flag, force=force,
+                                      v_point=v_point))
+        self.M, self.f = self.kane.equations()
+        qd = self.rate(self.qf)
+        self.power = sum(tau[k] * qd[IDX[f"gamma{k + 1}"]] for k in range(6))
+        self.kinetic = 0.5 * ca.dot(self.u, self.M @ self.u)
+        self.potential = self.rover.potential + sum(
+            ca.if_else(c["flag"], 0.5 * p["ground_k"] * c["geo"].depth ** 2, 0) for c in self.contacts)
+
+    def rate(self, expr):
+        return ca.jtimes(expr, self.q, self.u)
+
+    # ---------------- the contract's functions ----------------
+    @cached_property
+    def settle_idx(self) -> list[int]:
+        return [self.q_names.index(n) for n in SETTLE if n in self.q_names]
+
+    def outputs(self) -> list[tuple[Quantity, ca.SX]]:
+        o, qf, qd = [], self.qf, self.rate(self.qf)
+        planar = self.opt.dims == "2d"
+        pose = [("x", "m"), ("y", "m"), ("z", "m"), ("yaw", "rad"), ("pitch", "rad"), ("roll", "rad")]
+        for k, (name, unit) in enumerate(pose):
+            if not (planar and name in ("y", "yaw", "roll")):
+                o.append((_out(f"body.{name}", unit, f"body pose: {name} (mass center, ZYX Euler)"), qf[IDX[name]]))
+        v, w = self.rover.body_velocity, self.rover.body_omega
+        for k, axis in enumerate("xyz"):
+            if not (planar and axis == "y"):
+                o.append((_out(f"body.v{axis}", "m/s", f"body velocity along world {axis.upper()}"), v[k]))
+        for k, axis in enumerate("xyz"):
+            if not (planar and axis in "xz"):
+                o.append((_out(f"body.w{axis}", "rad/s", f"body angular velocity about world {axis.upper()}"), w[k]))
+        o.append((_out("bogie.theta[1]", "rad", "left bogie angle theta1 (positive lifts the front wheel)"),
+                  qf[IDX["theta1"]]))
+        o.append((_out("bogie.theta[2]", "rad", "right bogie angle theta2"), qf[IDX["theta2"]]))
+        o.append((_out("fork.theta4", "rad", "front four-bar lower link angle theta4"), qf[IDX["theta4"]]))
+        o.append((_out("fork.theta5", "rad", "front four-bar coupler angle theta5 (dependent)"), self.rover.theta5))
+        if self.opt.steering:
+            o.append((_out("steer.theta[1]", "rad", "steering angle of wheel 5 (theta3)"), qf[IDX["theta3"]]))
+            o.append((_out("steer.theta[2]", "rad", "steering angle of wheel 6 (theta6)"), qf[IDX["theta6"]]))
+        for wh, c in zip(self.rover.wheels, self.contacts):
+            k = wh.index
+            geo = c["geo"]
+            o += [
+                (_out(f"wheel[{k}].omega", "rad/s", f"wheel {k} spin rate"), qd[IDX[f"gamma{k}"]]),
+                (_out(f"wheel[{k}].Fn", "N", f"wheel {k} normal contact force"), c["Fn"]),
+                (_out(f"wheel[{k}].Fx", "N", f"wheel {k} longitudinal contact force (contact frame x)"), c["Fx"]),
+                (_out(f"wheel[{k}].Fy", "N", f"wheel {k} lateral contact force (contact frame y)"), c["Fy"]),
+                (_out(f"wheel[{k}].mode", "1", f"wheel {k} contact mode: 0 airborne, 2 in contact", "Integer"),
+                 ca.if_else(c["flag"], 2, 0)),
+            ]
+            for j, axis in enumerate("xyz"):
+                o.append((_out(f"wheel[{k}].c{axis}", "m", f"wheel {k} center, world {axis.upper()}"), wh.center[j]))
+            for j, axis in enumerate("xyz"):
+                o.append((_out(f"wheel[{k}].p{axis}", "m", f"wheel {k} contact point, world {axis.upper()}"),
+                          geo.point[j]))
+            o.append((_out(f"wheel[{k}].psi", "rad", f"wheel {k} contact slope angle"), geo.slope))
+            o.append((_out(f"wheel[{k}].slip", "m/s", f"wheel {k} slip speed at the contact"), c["slip"]))
+        return o
+
+    def functions(self) -> dict[str, ca.Function]:
+        q, u, par, inp = self.q, self.u, self.par, self.inp
+        n = q.numel()
+        z = ca.SX.sym("z", 1)
+        a = ca.SX.sym("a", n)
+        r = self.M @ a - self.f
+        outs = self.outputs()
+        y = ca.vertcat(*[e for _, e in outs[:]],
+                       self.kinetic, self.potential, z[0])
+        sidx = self.settle_idx
+        f0 = ca.substitute(self.f, u, ca.DM.zeros(n))
+        res = f0[sidx]
+        jac = ca.jacobian(res, q)[:, sidx]
+        return {
+            "cedra_M": ca.Function("cedra_M", [q, par], [self.M]),
+            "cedra_f": ca.Function("cedra_f", [q, u, inp, par], [self.f, self.power]),
+            "cedra_rjac": ca.Function("cedra_rjac", [q, u, a, inp, par],
+                                      [ca.jacobian(r, q), ca.jacobian(r, u),
+                                       ca.jacobian(self.power, q), ca.jacobian(self.power, u)]),
+            "cedra_out": ca.Function("cedra_out", [q, u, z, inp, par], [y]),
+            "cedra_settle": ca.Function("cedra_settle", [q, inp, par], [res, jac]),
+            "cedra_guess": ca.Function("cedra_guess", [q, inp, par], [self.guess()]),
+            "cedra_check": ca.Function("cedra_check", [q, u, inp, par],
+                                       [ca.if_else(ca.fabs(self.rover.closure) < 1, 1, 0)]),
+        }
+
+    def guess(self):
+        """A pose in light contact with the terrain under (x, y) for the settle Newton: body level with the
+        terrain's slope under it, bogies and fork at their design angles, 1 mm into the ground."""
+        q, p, names = self.q, self.p, self.q_names
+        x = q[names.index("x")]
+        y = q[names.index("y")] if "y" in names else 0
+        yaw = q[names.index("yaw")] if "yaw" in names else 0
+        h = self.terrain.height(x, y)
+        n = self.terrain.normal(x, y)
+        fwd = ca.vertcat(ca.cos(yaw), ca.sin(yaw), 0)
+        left = ca.vertcat(-ca.sin(yaw), ca.cos(yaw), 0)
+        pitch = ca.atan2(ca.dot(n, fwd), n[2])          # positive pitch = nose down (the terrain descends ahead)
+        roll = ca.atan2(-ca.dot(n, left), n[2])
+        height = (p["R_w"] - p["rear_z"]) / ca.cos(pitch) / ca.cos(roll)
+        values = {"z": h + height - 1e-3, "pitch": pitch, "roll": roll, "theta1": 0, "theta2": 0,
+                  "theta4": p["fork_theta4_ref"]}
+        return ca.vertcat(*[values[nm] if nm in values else q[k] for k, nm in enumerate(names)])
+
+    def spec(self, name: str, description: str = "", **kw) -> ModelSpec:
+        outs = [qq for qq, _ in self.outputs()] + [
+            _out("energy.kinetic", "J", "kinetic energy"),
+            _out("energy.potential", "J",
+                 "potential energy: gravity (datum Z = 0), fork spring, stops, servo springs, ground springs"),
+            _out("energy.work", "J", "work done by the motor torques since the start")]
+        q_start = [0.0] * len(self.q_names)
+        q_start[self.q_names.index("z")] = parameters.DEFAULTS["R_w"] - parameters.DEFAULTS["rear_z"]
+        q_start[self.q_names.index("theta4")] = parameters.DEFAULTS["fork_theta4_ref"]
+        return ModelSpec(name=name, description=description or f"CEDRA rover, {self.opt}",
+                         q_names=list(self.q_names), z_names=["work"], params=list(self.params),
+                         inputs=list(self.inputs), outputs=outs, q_start=q_start, settle_idx=self.settle_idx,
+                         start_params={f"start.{n}": k for k, n in enumerate(self.q_names)},
+                         functions=self.functions(), **kw)
+
+    # ---------------- numeric helpers (tests, reference solutions) ----------------
+    @cached_property
+    def _num(self):
+        return self.functions()
+
+    def default_par(self, **overrides) -> np.ndarray:
+        unknown = set(overrides) - {p.name for p in self.params}
+        if unknown:
+            raise KeyError(f"unknown parameters {sorted(unknown)}")
+        return np.array([overrides.get(p.name, p.start) for p in self.params])
+
+    def default_inp(self, **overrides) -> np.ndarray:
+        unknown = set(overrides) - {p.name for p in self.inputs}
+        if unknown:
+            raise KeyError(f"unknown inputs {sorted(unknown)}")
+        return np.array([overrides.get(p.name, p.start) for p in self.inputs])
+
+    def udot(self, q, u, inp, par) -> np.ndarray:
+        M = np.array(self._num["cedra_M"](q, par))
+        f = np.array(self._num["cedra_f"](q, u, inp, par)[0]).ravel()
+        return np.linalg.solve(M, f)

@@ -1,0 +1,139 @@
+"""The CEDRA mechanism (spec sections 2-4): geometry by transform chains, masses, joint forces.
+
+This module only *describes* the rover: given its generalized coordinates as expressions (the full 17 of
+the 3D rover, each written in terms of a scene's own reduced coordinates), it returns bodies, wheels and the
+torques acting on coordinates. kane.py forms the equations; model.py chooses the reduced coordinates.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+
+from .kane import Body
+from .transforms import apply, e_xz, homogeneous, rot_x, rot_y, rot_z, rotation, translation
+
+FULL_Q = ["x", "y", "z", "yaw", "pitch", "roll", "theta1", "theta2", "theta4", "theta3", "theta6",
+          "gamma1", "gamma2", "gamma3", "gamma4", "gamma5", "gamma6"]
+IDX = {name: i for i, name in enumerate(FULL_Q)}
+EY = ca.DM([0, 1, 0])
+EZ = ca.DM([0, 0, 1])
+
+
+@dataclass
+class Wheel:
+    index: int          # the paper's numbering, 1..6
+    center: ca.SX       # world
+    axle: ca.SX         # world unit vector
+    omega: ca.SX        # world angular velocity of the wheel
+    velocity: ca.SX     # world velocity of the center
+
+
+@dataclass
+class RoverDescription:
+    bodies: list[Body]
+    wheels: list[Wheel]
+    coordinate_torques: ca.SX   # torque on each of the 17 full coordinates (joint springs, stops, motors, servo)
+    potential: ca.SX            # gravity (datum Z = 0) + fork spring + stops + servo springs
+    theta5: ca.SX
+    closure: ca.SX              # K/|d| of the four-bar: |closure| < 1 where it can be assembled
+    body_omega: ca.SX
+    body_velocity: ca.SX
+
+
+def four_bar(theta4, p):
+    """Closed-form closure of the front four-bar (spec section 2): (C, theta5, K/|d|)."""
+    A = ca.vertcat(p["fork_ax"], 0, p["fork_az"])
+    B = ca.vertcat(p["fork_bx"], 0, p["fork_bz"])
+    C = apply(translation(A) @ homogeneous(rot_y(-theta4), ca.DM.zeros(3)), ca.vertcat(p["fork_a"], 0, 0))
+    d = C - B
+    dn = ca.norm_2(d)
+    K = (p["fork_b"] ** 2 - ca.dot(d, d) - p["fork_c"] ** 2) / (2 * p["fork_c"])
+    theta5 = ca.atan2(d[2], d[0]) + ca.acos(K / dn)
+    return C, theta5, K / dn
+
+
+def stop_torque(angle, rate, lo, hi, k, d):
+    """Compliant joint stop: -k overshoot - d rate beyond a stop, clipped so it only pushes back out."""
+    above = ca.fmin(0, -k * (angle - hi) - d * rate)
+    below = ca.fmax(0, -k * (angle - lo) - d * rate)
+    return ca.if_else(angle > hi, above, ca.if_else(angle < lo, below, 0))
+
+
+def stop_energy(angle, lo, hi, k):
+    return 0.5 * k * (ca.fmax(0, angle - hi) ** 2 + ca.fmax(0, lo - angle) ** 2)
+
+
+def describe(qf, rate, p, tau, steer_cmd):
+    """The rover for full coordinates qf (17 expressions of a scene's coordinates); rate(expr) is the time
+    derivative of an expression; p: parameter symbols by name;
+    tau: six motor torques; steer_cmd: (theta3, theta6) commands or None when the scene has no steering."""
+    x, y, z, yaw, pitch, roll = (qf[IDX[n]] for n in ("x", "y", "z", "yaw", "pitch", "roll"))
+    th1, th2, th4, th3, th6 = (qf[IDX[n]] for n in ("theta1", "theta2", "theta4", "theta3", "theta6"))
+    qdf = rate(qf)
+    d = {n: qdf[IDX[n]] for n in FULL_Q}
+
+    R = rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)                 # spec: R_OR = Rz Ry Rx (paper Eq. 37)
+    T_OR = homogeneous(R, ca.vertcat(x, y, z))
+    w_body = EZ * d["yaw"] + rot_z(yaw) @ (EY * d["pitch"]) + rot_z(yaw) @ rot_y(pitch) @ ca.DM([1, 0, 0]) * d["roll"]
+
+    def world(T_local, point=ca.DM.zeros(3)):
+        return apply(T_OR @ T_local, point)
+
+    # bogies: rockers about the body's y axis; e(theta) lifts the front wheel = rotation about -y
+    bogie_wheels = []
+    for side, th, (front, rear) in ((+1, th1, (1, 2)), (-1, th2, (3, 4))):
+        T_bogie = translation(ca.vertcat(p["bogie_x"], side * p["bogie_y"], p["bogie_z"])) @ \
+            homogeneous(rot_y(-th), ca.DM.zeros(3))
+        w_bogie = w_body - R @ EY * (d["theta1"] if side > 0 else d["theta2"])
+        for idx, sign in ((front, 1), (rear, -1)):
+            c = world(T_bogie, ca.vertcat(sign * p["bogie_half"], 0, 0))
+            bogie_wheels.append((idx, c, R @ EY, w_bogie + R @ EY * d[f"gamma{idx}"], R))
+
+    # rear wheel: steering axis along body z
+    R5 = rot_z(th3)
+    c5 = world(translation(ca.vertcat(p["rear_x"], 0, p["rear_z"])))
+    axle5 = R @ R5 @ EY
+    w5 = w_body + R @ EZ * d["theta3"] + axle5 * d["gamma5"]
+
+    # front four-bar: the coupler frame's x axis is s = e(theta5), its rotation is about -y
+    C, theta5, closure = four_bar(th4, p)
+    th5dot = rate(theta5)
+    T_coupler = translation(C) @ homogeneous(rot_y(-theta5), ca.DM.zeros(3))
+    w_coupler = w_body - R @ EY * th5dot
+    R6 = rotation(T_coupler) @ rot_x(th6)                        # axle: y rotated about s by theta6
+    c6 = world(T_coupler, ca.vertcat(-p["fork_wheel"], 0, 0))
+    axle6 = R @ R6 @ EY
+    s_world = R @ rotation(T_coupler) @ ca.DM([1, 0, 0])
+    w6 = w_coupler + s_world * d["theta6"] + axle6 * d["gamma6"]
+    fork_mass = world(T_coupler, ca.vertcat(p["fork_mass_at"], 0, 0))
+
+    mw, Rw = p["m_w"], p["R_w"]
+    I_wheel = ca.diag(ca.vertcat(0.25, 0.5, 0.25)) * mw * Rw ** 2   # axle = the frame's y axis
+    bodies = [Body("body", p["m_B"], ca.vertcat(x, y, z), w_body,
+                   ca.diag(ca.vertcat(p["I_Bxx"], p["I_Byy"], p["I_Bzz"])), R),
+              Body("fork", p["m_F"], fork_mass, w_coupler, p["I_F"] * ca.SX.eye(3), ca.SX.eye(3))]
+    wheels = []
+    for idx, c, axle, w, frame in bogie_wheels + [(5, c5, axle5, w5, R @ R5), (6, c6, axle6, w6, R @ R6)]:
+        bodies.append(Body(f"wheel{idx}", mw, c, w, I_wheel, frame))
+        wheels.append(Wheel(idx, c, axle, w, rate(c)))
+    wheels.sort(key=lambda wh: wh.index)
+
+    # torques on coordinates
+    Q = ca.SX.zeros(len(FULL_Q))
+    lo, hi = -p["bogie_stop"], p["bogie_stop"]
+    Q[IDX["theta1"]] = stop_torque(th1, d["theta1"], lo, hi, p["stop_k"], p["stop_d"])
+    Q[IDX["theta2"]] = stop_torque(th2, d["theta2"], lo, hi, p["stop_k"], p["stop_d"])
+    Q[IDX["theta4"]] = -p["fork_k"] * (th4 - p["fork_theta4_ref"]) - p["fork_d"] * d["theta4"] + \
+        stop_torque(th4, d["theta4"], p["fork_stop_lo"], p["fork_stop_hi"], p["stop_k"], p["stop_d"])
+    for i in range(6):
+        Q[IDX[f"gamma{i + 1}"]] = tau[i]
+    V = sum(b.mass * p["g"] * b.position[2] for b in bodies)
+    V += 0.5 * p["fork_k"] * (th4 - p["fork_theta4_ref"]) ** 2
+    V += stop_energy(th1, lo, hi, p["stop_k"]) + stop_energy(th2, lo, hi, p["stop_k"])
+    V += stop_energy(th4, p["fork_stop_lo"], p["fork_stop_hi"], p["stop_k"])
+    if steer_cmd is not None:
+        for name, cmd in (("theta3", steer_cmd[0]), ("theta6", steer_cmd[1])):
+            Q[IDX[name]] = -p["steer_k"] * (qf[IDX[name]] - cmd) - p["steer_d"] * d[name]
+            V += 0.5 * p["steer_k"] * (qf[IDX[name]] - cmd) ** 2
+    return RoverDescription(bodies, wheels, Q, V, theta5, closure, w_body, rate(ca.vertcat(x, y, z)))

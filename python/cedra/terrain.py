@@ -1,0 +1,83 @@
+"""Terrain kinds Z = f(X, Y) (spec section 5). Terrain numbers are FMU inputs, so they are symbols here."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import casadi as ca
+
+from .spec import Quantity
+
+TERRAIN_INPUTS = {
+    "terrain_h": Quantity("terrain_h", 0.14625, "m", "terrain feature height (bump, step, waves)"),
+    "terrain_w": Quantity("terrain_w", 0.14625, "m", "terrain feature width (bump) or wavelength (waves)",
+                          min=1e-6),
+    "terrain_x0": Quantity("terrain_x0", 1.0, "m", "terrain feature position, X"),
+    "terrain_y0": Quantity("terrain_y0", 0.0, "m", "terrain feature position, Y (bump3d)"),
+    "terrain_slope": Quantity("terrain_slope", 0.0, "rad",
+                              "slope angle about Y (positive: the ground descends toward +X)", min=-1.2, max=1.2),
+    "terrain_s": Quantity("terrain_s", 0.02, "m", "step smoothing length", min=1e-6),
+}
+
+
+@dataclass(frozen=True)
+class TerrainKind:
+    name: str
+    inputs: tuple[str, ...]
+    height: Callable       # (X, Y, t: dict name -> SX) -> SX
+    planar: bool           # a plane: the rim search's start point (beta = 0) is already exact
+
+
+def _bump(X, Y, t):
+    return t["terrain_h"] * ca.exp(-((X - t["terrain_x0"]) / t["terrain_w"]) ** 2)
+
+
+def _bump3d(X, Y, t):
+    r2 = (X - t["terrain_x0"]) ** 2 + (Y - t["terrain_y0"]) ** 2
+    return t["terrain_h"] * ca.exp(-r2 / t["terrain_w"] ** 2)
+
+
+def _step(X, Y, t):
+    return 0.5 * t["terrain_h"] * (1 + ca.tanh((X - t["terrain_x0"]) / t["terrain_s"]))
+
+
+def _waves(X, Y, t):
+    k = 2 * ca.pi / t["terrain_w"]
+    return t["terrain_h"] * ca.sin(k * X) * ca.sin(k * Y)
+
+
+KINDS = {
+    "flat": TerrainKind("flat", (), lambda X, Y, t: 0 * X, True),
+    "slope": TerrainKind("slope", ("terrain_slope",), lambda X, Y, t: -ca.tan(t["terrain_slope"]) * X, True),
+    "bump": TerrainKind("bump", ("terrain_h", "terrain_w", "terrain_x0"), _bump, False),
+    "bump3d": TerrainKind("bump3d", ("terrain_h", "terrain_w", "terrain_x0", "terrain_y0"), _bump3d, False),
+    "step": TerrainKind("step", ("terrain_h", "terrain_x0", "terrain_s"), _step, False),
+    "waves": TerrainKind("waves", ("terrain_h", "terrain_w"), _waves, False),
+}
+# "heightmap" (a grid in the FMU's resources) is named by the spec but not built yet: scene.py refuses it.
+
+
+class Terrain:
+    """A terrain kind bound to its symbolic inputs: height, gradient and unit normal."""
+
+    def __init__(self, kind: str, inputs: dict[str, ca.SX]):
+        self.kind = KINDS[kind]
+        self.inputs = inputs
+        X, Y = ca.SX.sym("X"), ca.SX.sym("Y")
+        t = [inputs[n] for n in self.kind.inputs]
+        h = self.kind.height(X, Y, inputs)
+        grad = ca.gradient(h, ca.vertcat(X, Y))
+        self._f = ca.Function("terrain", [X, Y] + t, [h, grad])
+        self._t = t
+
+    @property
+    def planar(self):
+        return self.kind.planar
+
+    def height(self, X, Y):
+        return self._f(X, Y, *self._t)[0]
+
+    def normal(self, X, Y):
+        g = self._f(X, Y, *self._t)[1]
+        n = ca.vertcat(-g[0], -g[1], 1)
+        return n / ca.norm_2(n)
