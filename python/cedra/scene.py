@@ -1,0 +1,186 @@
+"""Scene files (TOML): what one simulation needs. A bad scene fails here, with the file, the key and the reason,
+before any code is generated.
+
+    name = "bump2d"                 # FMU model identifier: letters, digits, underscore
+    description = "..."
+    dims = "2d"                     # "2d" (planar, 9 DOF) or "3d" (17 DOF, 15 without steering)
+    terrain = "bump"                # flat | slope | bump | bump3d | step | waves
+    contact = "compliant"           # compliant (rigid: not built yet)
+    steering = false                # 3d only: steering servo on wheels 5 and 6
+    stop_time = 15.0                # s, the FMU's DefaultExperiment
+    output_interval = 0.01          # s, the DefaultExperiment's step size
+    [solver]                        # defaults of the FMU's solver.* parameters
+    method = "rodas4"               # rk4 | dopri5 | rodas4
+    tol = 1e-6
+    h_max = 0.01
+    [parameters]                    # start values of model parameters (spec section 4 names, ground_k, ...)
+    [inputs]                        # start values of inputs (tau[1], mu, terrain_h, ...)
+    [start]                         # initial coordinates, e.g. x = 0.0 (the rest is settled by the FMU)
+"""
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+
+from .model import CedraModel, ModelOptions, input_table, param_table, projection
+from .spec import ModelSpec
+from .terrain import KINDS
+
+SOLVERS = {"rk4": 0, "dopri5": 1, "rodas4": 2}
+TOP_KEYS = {"name", "description", "dims", "terrain", "contact", "steering", "stop_time", "output_interval",
+            "solver", "parameters", "inputs", "start"}
+
+
+class SceneError(ValueError):
+    pass
+
+
+@dataclass
+class Scene:
+    name: str
+    description: str
+    options: ModelOptions
+    stop_time: float
+    output_interval: float
+    solver: dict
+    parameters: dict = field(default_factory=dict)
+    inputs: dict = field(default_factory=dict)
+    start: dict = field(default_factory=dict)
+    path: str = ""
+
+    def model(self) -> CedraModel:
+        return CedraModel(self.options)
+
+    def spec(self, model: CedraModel | None = None) -> ModelSpec:
+        model = model or self.model()
+        s = model.spec(self.name, self.description, stop_time=self.stop_time, output_interval=self.output_interval,
+                       solver=dict(self.solver))
+        s.params = [replace(p, start=float(self.parameters.get(p.name, p.start))) for p in s.params]
+        s.inputs = [replace(p, start=float(self.inputs.get(p.name, p.start))) for p in s.inputs]
+        for name, value in self.start.items():
+            s.q_start[s.q_names.index(name)] = float(value)
+        return s
+
+
+def _fail(path, key, reason):
+    raise SceneError(f"{path}: key '{key}': {reason}")
+
+
+def _number(path, key, value, lo=None, hi=None, positive=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        _fail(path, key, f"expected a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        _fail(path, key, f"must be finite, got {value}")
+    if positive and value <= 0:
+        _fail(path, key, f"must be > 0, got {value}")
+    if lo is not None and value < lo:
+        _fail(path, key, f"must be >= {lo}, got {value}")
+    if hi is not None and value > hi:
+        _fail(path, key, f"must be <= {hi}, got {value}")
+    return value
+
+
+def _choice(path, key, value, choices):
+    if value not in choices:
+        _fail(path, key, f"must be one of {sorted(choices)}, got {value!r}")
+    return value
+
+
+def _table(path, data, key):
+    t = data.get(key, {})
+    if not isinstance(t, dict):
+        _fail(path, key, "must be a table")
+    return t
+
+
+def parse(data: dict, path: str = "<scene>") -> Scene:
+    for key in data:
+        if key not in TOP_KEYS:
+            _fail(path, key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")
+    for key in ("name", "dims", "terrain"):
+        if key not in data:
+            _fail(path, key, "missing")
+    name = data["name"]
+    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        _fail(path, "name", f"must be an identifier (letters, digits, underscore), got {name!r}")
+    dims = _choice(path, "dims", data["dims"], {"2d", "3d"})
+    terrain = data["terrain"]
+    if terrain == "heightmap":
+        _fail(path, "terrain", "'heightmap' is not supported yet (see README, open work)")
+    terrain = _choice(path, "terrain", terrain, set(KINDS))
+    if dims == "2d" and terrain in ("bump3d", "waves"):
+        _fail(path, "terrain", f"'{terrain}' varies along Y and needs dims = '3d'")
+    contact = data.get("contact", "compliant")
+    if contact == "rigid":
+        _fail(path, "contact", "'rigid' is not built yet (only 'compliant')")
+    contact = _choice(path, "contact", contact, {"compliant"})
+    steering = data.get("steering", False)
+    if not isinstance(steering, bool):
+        _fail(path, "steering", f"expected true or false, got {steering!r}")
+    if dims == "2d" and steering:
+        _fail(path, "steering", "a 2d scene has no steering")
+    stop_time = _number(path, "stop_time", data.get("stop_time", 10.0), positive=True)
+    interval = _number(path, "output_interval", data.get("output_interval", 0.01), positive=True)
+    if interval > stop_time:
+        _fail(path, "output_interval", f"{interval} is longer than stop_time {stop_time}")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        _fail(path, "description", "must be a string")
+
+    solver = dict(method="rodas4", tol=1e-6, h_max=0.01)
+    st = _table(path, data, "solver")
+    for key, value in st.items():
+        k = f"solver.{key}"
+        if key == "method":
+            solver["method"] = _choice(path, k, value, set(SOLVERS))
+        elif key in ("tol", "h_max"):
+            solver[key] = _number(path, k, value, positive=True)
+        else:
+            _fail(path, k, "unknown key (known: method, tol, h_max)")
+
+    opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact)
+    scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path))
+    for section, table in (("parameters", param_table(opt)), ("inputs", input_table(opt))):
+        known = {q.name: q for q in table}
+        values = {}
+        for key, value in _table(path, data, section).items():
+            if key not in known:
+                _fail(path, f"{section}.{key}", f"not a {section[:-1]} of this scene "
+                      f"(dims={dims}, terrain={terrain}, steering={steering})")
+            q = known[key]
+            values[key] = _number(path, f"{section}.{key}", value, q.min, q.max)
+        setattr(scene, section, values)
+    names, _ = projection(opt)
+    for key, value in _table(path, data, "start").items():
+        if key not in names:
+            _fail(path, f"start.{key}", f"not a coordinate of this scene (coordinates: {', '.join(names)})")
+        scene.start[key] = _number(path, f"start.{key}", value)
+    return scene
+
+
+def load(path) -> Scene:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise SceneError(f"{path}: cannot read: {e.strerror}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{path}: not valid TOML: {e}") from None
+    return parse(data, str(path))
+
+
+def shipped() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("cedra.scenes").iterdir() if p.name.endswith(".toml"))
+
+
+def load_shipped(name: str) -> Scene:
+    if name not in shipped():
+        raise SceneError(f"no shipped scene {name!r} (shipped: {', '.join(shipped())})")
+    return load(Path(str(resources.files("cedra.scenes") / f"{name}.toml")))
