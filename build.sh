@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# ./build.sh         set up .venv (if missing), generate, compile and package every shipped scene into build/
+# ./build.sh demo    ... then run the main job: the paper's bump run (out/bump2d/: CSV, plots; prints timing)
+# ./build.sh test    ... then run the tests
+set -euo pipefail
+cd "$(dirname "$0")"
+if [ ! -x .venv/bin/python ]; then
+    python3 -m venv .venv
+    .venv/bin/pip install -q --upgrade pip
+fi
+if ! .venv/bin/pip install -q --disable-pip-version-check -r requirements.txt -e . >/tmp/cedra-pip.log 2>&1; then
+    cat /tmp/cedra-pip.log; exit 1
+fi
+PY=.venv/bin/python
+$PY -m cedra build --out build
+case "${1:-}" in
+    demo) $PY -m cedra simulate bump2d --build build --out out ;;
+    test) shift; $PY -m pytest -q -n 2 "$@" ;;
+    "") ;;
+    *) echo "usage: $0 [demo|test]" >&2; exit 2 ;;
+esac

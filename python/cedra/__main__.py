@@ -1,0 +1,73 @@
+"""Command line: python -m cedra build|simulate|bench|report ..."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+
+def cmd_build(args):
+    from .fmu import build_fmu
+    from .scene import SceneError, load, load_shipped, shipped
+    names = args.scenes or shipped()
+    for name in names:
+        try:
+            scene = load(name) if name.endswith(".toml") else load_shipped(name)
+        except SceneError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        t0 = time.perf_counter()
+        spec = scene.spec()
+        t1 = time.perf_counter()
+        path = build_fmu(spec, Path(args.out))
+        print(f"{scene.name}: {path} (model {t1 - t0:.1f} s, C code and compile {time.perf_counter() - t1:.1f} s)")
+    return 0
+
+
+def cmd_simulate(args):
+    from . import simulate
+    if args.scene != "bump2d":
+        print("error: the main job is the bump2d scene", file=sys.stderr)
+        return 2
+    return simulate.main(Path(args.build) / "bump2d.fmu", Path(args.out) / "bump2d", args.stop_time)
+
+
+def cmd_bench(args):
+    from . import bench
+    return bench.main(args)
+
+
+def cmd_report(args):
+    if args.which == "precision":
+        from .reports import precision as r
+    else:
+        from .reports import stability as r
+    return r.main(args)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m cedra")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    b = sub.add_parser("build", help="generate, compile and package FMUs (default: every shipped scene)")
+    b.add_argument("scenes", nargs="*", help="shipped scene names or .toml files")
+    b.add_argument("--out", default="build")
+    s = sub.add_parser("simulate", help="run the main job (the paper's bump run)")
+    s.add_argument("scene", nargs="?", default="bump2d")
+    s.add_argument("--build", default="build")
+    s.add_argument("--out", default="out")
+    s.add_argument("--stop-time", type=float, default=15.0)
+    be = sub.add_parser("bench", help="benchmark the shipped FMUs (prints figures)")
+    be.add_argument("--build", default="build")
+    be.add_argument("--stop-time", type=float, default=10.0)
+    r = sub.add_parser("report", help="work-precision or stability report")
+    r.add_argument("which", choices=["precision", "stability"])
+    r.add_argument("--build", default="build")
+    r.add_argument("--out", default="out/report")
+    r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")
+    args = ap.parse_args(argv)
+    return {"build": cmd_build, "simulate": cmd_simulate, "bench": cmd_bench, "report": cmd_report}[args.cmd](args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

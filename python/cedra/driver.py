@@ -1,0 +1,101 @@
+"""Drive a cedra FMU by variable name through FMPy (used by the main job, the reports and the benchmark)."""
+from __future__ import annotations
+
+import shutil
+from ctypes import byref
+
+import numpy as np
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Terminated)
+from fmpy.fmi1 import calloc, free
+
+STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
+
+
+class RoverFMU:
+    """One instance of a cedra FMU. Failed calls do not raise: `status` and `messages` say what happened."""
+
+    def __init__(self, fmu_path, instance_name="cedra"):
+        self.md = read_model_description(str(fmu_path))
+        self.unzipdir = extract(str(fmu_path))
+        self.vars = {v.name: v for v in self.md.modelVariables}
+        self.messages: list[str] = []
+        self.status = "ok"
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
+                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
+        self._callbacks = fmi2CallbackFunctions()
+        self._callbacks.logger = fmi2CallbackLoggerTYPE(self._log)
+        self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        try:
+            from fmpy.logging import addLoggerProxy
+            addLoggerProxy(byref(self._callbacks))
+        except Exception:     # the proxy only formats printf-style arguments; cedra passes finished messages
+            pass
+        self.time = 0.0
+
+    def _log(self, env, name, status, category, message):
+        self.messages.append(f"[{STATUS[status] if status < 6 else status}] {category.decode()}: {message.decode()}")
+
+    def has(self, name):
+        return name in self.vars
+
+    def start(self, values: dict | None = None, start_time=0.0):
+        """Instantiate, set start values by name, initialize (the FMU settles the pose)."""
+        self.fmu.instantiate(callbacks=self._callbacks)
+        self.fmu.setupExperiment(startTime=start_time)
+        self.fmu.enterInitializationMode()
+        self.set(values or {})
+        self.fmu.exitInitializationMode()
+        self.time = start_time
+
+    def set(self, values: dict):
+        for name, value in values.items():
+            v = self.vars[name]
+            if v.type == "Real":
+                self.fmu.setReal([v.valueReference], [float(value)])
+            elif v.type == "Integer":
+                self.fmu.setInteger([v.valueReference], [int(value)])
+            elif v.type == "Boolean":
+                self.fmu.setBoolean([v.valueReference], [bool(value)])
+            else:
+                raise ValueError(f"{name}: cannot set a {v.type}")
+
+    def get(self, names) -> np.ndarray:
+        out = np.empty(len(names))
+        for k, name in enumerate(names):
+            v = self.vars[name]
+            if v.type == "Real":
+                out[k] = self.fmu.getReal([v.valueReference])[0]
+            elif v.type == "Integer":
+                out[k] = self.fmu.getInteger([v.valueReference])[0]
+            else:
+                out[k] = self.fmu.getBoolean([v.valueReference])[0]
+        return out
+
+    def step(self, t_next) -> bool:
+        """Step to t_next; False (status 'discard'/'error', reason in messages) if the FMU refused. The step is
+        t_next - time, so a master computing t_next = k dt does not accumulate round-off."""
+        try:
+            self.fmu.doStep(currentCommunicationPoint=self.time, communicationStepSize=t_next - self.time)
+        except FMICallException as e:
+            self.status = STATUS[e.status] if 0 <= e.status < 6 else str(e.status)
+            return False
+        self.time = t_next
+        return True
+
+    def terminated(self) -> bool:
+        try:
+            return bool(self.fmu.getBooleanStatus(fmi2Terminated))
+        except FMICallException:
+            return False
+
+    def close(self):
+        try:
+            self.fmu.terminate()
+        except FMICallException:
+            pass
+        self.fmu.freeInstance()
+        shutil.rmtree(self.unzipdir, ignore_errors=True)
