@@ -58,7 +58,7 @@ def projection(opt: ModelOptions) -> tuple[list[str], np.ndarray]:
 
 
 def param_table(opt: ModelOptions) -> list[Quantity]:
-    ps = parameters.ROVER + parameters.GROUND
+    ps = parameters.ROVER + (parameters.RIGID if opt.contact == "rigid" else parameters.GROUND)
     if opt.steering:
         ps = ps + parameters.SERVO
     return ps
@@ -83,8 +83,9 @@ class CedraModel:
     """The rover's equations for one set of scene options. Symbolic pieces are public for tests."""
 
     def __init__(self, opt: ModelOptions):
-        if opt.contact != "compliant":
-            raise ValueError(f"contact model {opt.contact!r} is not built yet (only 'compliant')")
+        if opt.contact not in ("compliant", "rigid"):
+            raise ValueError(f"unknown contact model {opt.contact!r} (compliant or rigid)")
+        self.rigid = opt.contact == "rigid"
         self.opt = opt
         self.q_names, self.P = projection(opt)
         n = len(self.q_names)
@@ -110,17 +111,24 @@ class CedraModel:
         for wh in self.rover.wheels:
             geo = contact_geometry(wh.center, wh.axle, self.terrain, p["R_w"])
             v_point = wh.velocity + ca.cross(wh.omega, geo.point - wh.center)
+            vc = geo.frame.T @ v_point                      # contact-frame components (x, y, n)
+            if self.rigid:   # forces come from the glue's constrained solve; 0 placeholders in the outputs
+                self.contacts.append(dict(geo=geo, Fn=0, Fx=0, Fy=0, slip=ca.norm_2(vc[0:2]), flag=geo.depth >= 0,
+                                          v_point=v_point, vc=vc))
+                continue
             force, Fn, Fx, Fy, slip, flag = compliant_force(geo, v_point, p["ground_k"], p["ground_d"], i_["mu"],
                                                             p["v_eps"])
             self.kane.add_point_force(v_point, force)
             self.contacts.append(dict(geo=geo, Fn=Fn, Fx=Fx, Fy=Fy, slip=slip, flag=flag, force=force,
-                                      v_point=v_point))
+                                      v_point=v_point, vc=vc))
         self.M, self.f = self.kane.equations()
         qd = self.rate(self.qf)
         self.power = sum(tau[k] * qd[IDX[f"gamma{k + 1}"]] for k in range(6))
         self.kinetic = 0.5 * ca.dot(self.u, self.M @ self.u)
-        self.potential = self.rover.potential + sum(
-            ca.if_else(c["flag"], 0.5 * p["ground_k"] * c["geo"].depth ** 2, 0) for c in self.contacts)
+        self.potential = self.rover.potential
+        if not self.rigid:
+            self.potential += sum(ca.if_else(c["flag"], 0.5 * p["ground_k"] * c["geo"].depth ** 2, 0)
+                                  for c in self.contacts)
 
     def rate(self, expr):
         return ca.jtimes(expr, self.q, self.u)
@@ -160,7 +168,8 @@ class CedraModel:
                 (_out(f"wheel[{k}].Fn", "N", f"wheel {k} normal contact force"), c["Fn"]),
                 (_out(f"wheel[{k}].Fx", "N", f"wheel {k} longitudinal contact force (contact frame x)"), c["Fx"]),
                 (_out(f"wheel[{k}].Fy", "N", f"wheel {k} lateral contact force (contact frame y)"), c["Fy"]),
-                (_out(f"wheel[{k}].mode", "1", f"wheel {k} contact mode: 0 airborne, 2 in contact", "Integer"),
+                (_out(f"wheel[{k}].mode", "1", f"wheel {k} contact mode: 0 airborne, 1 stick, 2 slip" if self.rigid
+                  else f"wheel {k} contact mode: 0 airborne, 2 in contact", "Integer"),
                  ca.if_else(c["flag"], 2, 0)),
             ]
             for j, axis in enumerate("xyz"):
@@ -182,10 +191,23 @@ class CedraModel:
         y = ca.vertcat(*[e for _, e in outs[:]],
                        self.kinetic, self.potential, z[0])
         sidx = self.settle_idx
-        f0 = ca.substitute(self.f, u, ca.DM.zeros(n))
-        res = f0[sidx]
+        if self.rigid:
+            # On rigid ground the pose is fixed by geometry alone: every wheel touches (gap = 0). As many distinct
+            # wheels as settle unknowns (2D: wheels 3, 4 coincide with 1, 2); the glue's constrained solve then
+            # gives the contact forces.
+            wheels = [1, 2, 5, 6] if self.opt.dims == "2d" else [1, 2, 3, 4, 5, 6]
+            res = ca.vertcat(*[-self.contacts[k - 1]["geo"].depth for k in wheels])
+        else:
+            res = ca.substitute(self.f, u, ca.DM.zeros(n))[sidx]
         jac = ca.jacobian(res, q)[:, sidx]
-        return {
+        fns = {}
+        if self.rigid:
+            vc = ca.vertcat(*[c["vc"] for c in self.contacts])
+            W = ca.jacobian(vc, u)
+            fns["cedra_contact"] = ca.Function("cedra_contact", [q, u, inp, par],
+                                               [W, ca.jtimes(vc, q, u), vc,
+                                                ca.vertcat(*[-c["geo"].depth for c in self.contacts])])
+        return fns | {
             "cedra_M": ca.Function("cedra_M", [q, par], [self.M]),
             "cedra_f": ca.Function("cedra_f", [q, u, inp, par], [self.f, self.power]),
             "cedra_rjac": ca.Function("cedra_rjac", [q, u, a, inp, par],
@@ -229,7 +251,8 @@ class CedraModel:
                          q_names=list(self.q_names), z_names=["work"], params=list(self.params),
                          inputs=list(self.inputs), outputs=outs, q_start=q_start, settle_idx=self.settle_idx,
                          start_params={f"start.{n}": k for k, n in enumerate(self.q_names)},
-                         functions=self.functions(), **kw)
+                         functions=self.functions(), contact=self.opt.contact,
+                         n_contacts=len(self.contacts) if self.rigid else 0, **kw)
 
     # ---------------- numeric helpers (tests, reference solutions) ----------------
     @cached_property

@@ -45,6 +45,14 @@ GROUND = [
     Q("v_eps", 0.01, "m/s", "friction regularization speed (compliant model)", min=1e-12),
 ]
 
+# Rigid contact (the paper's decision tree): Baumgarte drift stabilization of the contact constraints
+# (project choice: a critically damped gap error with time constant 1/rigid_alpha), and the slip speed below
+# which a slipping wheel is tested for sticking again.
+RIGID = [
+    Q("rigid_alpha", 50.0, "1/s", "Baumgarte stabilization rate of the rigid contact constraints", min=1e-6),
+    Q("v_stick", 1e-4, "m/s", "slip speed below which a slipping wheel may stick again (rigid model)", min=0.0),
+]
+
 # The steering servo is not in the paper's numbers: a stiff PD servo holding each steering angle at its command.
 # (Project choice, see README: about 300 rad/s natural frequency on the steered wheel, damping ratio ~0.9.)
 SERVO = [
@@ -52,4 +60,4 @@ SERVO = [
     Q("steer_d", 0.3, "N.m.s/rad", "steering servo damping", min=0.0),
 ]
 
-DEFAULTS = {p.name: p.start for p in ROVER + GROUND + SERVO}
+DEFAULTS = {p.name: p.start for p in ROVER + GROUND + RIGID + SERVO}

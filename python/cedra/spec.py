@@ -29,6 +29,15 @@ matrices column-major):
                   then Newton on cedra_settle).
     cedra_check  (q, u, inp, par)       -> (ok[1])  1 where the state can be evaluated (e.g. the four-bar can
                   be assembled), 0 otherwise; the glue refuses such states with a logged reason.
+
+Rigid contact (contact == "rigid", the paper's decision tree) adds one function; cedra_f then holds every force
+except the contact forces, and the glue solves for accelerations and contact forces together:
+    cedra_contact (q, u, inp, par)      -> (W[3nc x nq], bias[3nc], vc[3nc], gap[nc])
+                  per contact (wheel) k, rows 3k..3k+2 = the contact frame's x (rolling), y (lateral), z (normal):
+                  vc = W u is the velocity of the wheel's material point at the contact in that frame, and
+                  d(vc)/dt = W udot + bias. gap = -penetration (gap <= 0: touching). A contact force
+                  lambda_k (same frame) enters as M udot = f + W' lambda. Outputs named wheel[i].Fn/Fx/Fy/mode are
+                  computed by the glue from its solution (cedra_out gives 0 there).
 """
 from __future__ import annotations
 
@@ -67,6 +76,8 @@ class ModelSpec:
     stop_time: float = 10.0
     output_interval: float = 0.01
     solver: dict = field(default_factory=dict)   # default solver settings: method, tol, h_max
+    contact: str = "compliant"              # "rigid": cedra_contact exists and the glue solves the contact forces
+    n_contacts: int = 0                     # rigid: number of contacts (wheels), in wheel order 1..n
 
     @property
     def nq(self) -> int:
@@ -85,6 +96,9 @@ class ModelSpec:
             "cedra_guess": ([nq, ni, npar], [(nq, 1)]),
             "cedra_check": ([nq, nq, ni, npar], [(1, 1)]),
         }
+        if self.contact == "rigid":
+            nc = self.n_contacts
+            expected["cedra_contact"] = ([nq, nq, ni, npar], [(3 * nc, nq), (3 * nc, 1), (3 * nc, 1), (nc, 1)])
         for name, (ins, outs) in expected.items():
             fn = self.functions.get(name)
             if fn is None:
