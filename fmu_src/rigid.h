@@ -1,0 +1,37 @@
+/* Rigid wheels on rigid ground: the paper's stick/slip decision tree (Eqs. 63-68, spec section 6 "Rigid model").
+ * Works on plain arrays from the generated cedra_M, cedra_f and cedra_contact; knows nothing about FMI. */
+#ifndef CEDRA_RIGID_H
+#define CEDRA_RIGID_H
+
+#include <stddef.h>
+
+enum rigid_mode { RIGID_AIRBORNE = 0, RIGID_STICK = 1, RIGID_SLIP = 2 };
+
+typedef struct {
+    double mu;        /* friction coefficient */
+    double alpha;     /* Baumgarte rate: gap'' + 2 alpha gap' + alpha^2 gap = 0, stick: v_t' + 2 alpha v_t = 0 */
+    double v_stick;   /* a wheel slipping slower than this is tested for sticking */
+    double gap_tol;   /* a wheel farther from the ground than this is airborne */
+} rigid_params;
+
+size_t rigid_workspace_size(int nq, int nc);   /* doubles */
+size_t rigid_iworkspace_size(int nq, int nc);  /* ints */
+
+/* Accelerations udot and contact forces lambda (per contact: Fx, Fy, Fn in the contact frame) and modes for
+ * M udot = f + W' lambda under the decision tree: start from the modes the state implies (gap > gap_tol:
+ * airborne; |v_t| <= v_stick: stick; else slip), solve, switch contacts with a negative normal force to airborne
+ * and sticking contacts outside the friction cone to slipping (force along the sticking force), and solve
+ * again; at most 4 nc + 4 rounds. Returns 0, or 1 with the reason in msg. */
+int rigid_accelerations(int nq, int nc, const double *M, const double *f, const double *W, const double *bias,
+                        const double *vc, const double *gap, const rigid_params *p,
+                        double *udot, double *lambda, int *mode, double *work, int *iwork,
+                        char *msg, size_t msg_len);
+
+/* Post-step stabilization: penetrating contacts (gap < 0) are moved onto gap = 0
+ * (minimum-norm Gauss-Newton step dq = -Wn' (Wn Wn')^-1 gap, using dgap/dq = Wn since qdot = u), and an
+ * inelastic impact for contacts approaching the ground (v_n < 0): u += M^-1 Wn' L with Wn (u + du) = 0, L >= 0.
+ * q, u are modified in place; returns 1 if anything changed, 0 if not, -1 on a singular system (msg). */
+int rigid_project(int nq, int nc, double *q, double *u, const double *M, const double *W, const double *vc,
+                  const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len);
+
+#endif
