@@ -33,6 +33,7 @@ class ModelOptions:
     terrain: str = "flat"
     steering: bool = False
     contact: str = "compliant"
+    locked_wheels: bool = False   # wheels welded to their carriers (a parking brake): no spin coordinates
 
 
 def coordinate_map(opt: ModelOptions) -> dict[str, str | None]:
@@ -43,6 +44,8 @@ def coordinate_map(opt: ModelOptions) -> dict[str, str | None]:
         m = NO_STEER_MAP
     else:
         m = {}
+    if opt.locked_wheels:
+        m = m | {f"gamma{i}": None for i in range(1, 7)}
     return {n: m.get(n, n) for n in FULL_Q}
 
 
@@ -65,8 +68,9 @@ def param_table(opt: ModelOptions) -> list[Quantity]:
 
 
 def input_table(opt: ModelOptions) -> list[Quantity]:
-    ins = [Quantity(f"tau[{i}]", 0.0, "N.m", f"motor torque of wheel {i} (about its axle, positive drives forward)")
-           for i in range(1, 7)]
+    ins = [] if opt.locked_wheels else [
+        Quantity(f"tau[{i}]", 0.0, "N.m", f"motor torque of wheel {i} (about its axle, positive drives forward)")
+        for i in range(1, 7)]
     if opt.steering:
         ins += [Quantity("steer[1]", 0.0, "rad", "commanded steering angle of wheel 5 (theta3)", -1.5, 1.5),
                 Quantity("steer[2]", 0.0, "rad", "commanded steering angle of wheel 6 (theta6)", -1.5, 1.5)]
@@ -99,7 +103,7 @@ class CedraModel:
         i_ = {q.name: self.inp[i] for i, q in enumerate(self.inputs)}
         self.p, self.i = p, i_
         self.qf = ca.SX(ca.DM(self.P)) @ self.q
-        tau = [i_[f"tau[{k}]"] for k in range(1, 7)]
+        tau = [i_.get(f"tau[{k}]", 0) for k in range(1, 7)]
         steer = (i_["steer[1]"], i_["steer[2]"]) if opt.steering else None
         self.rover = describe(self.qf, self.rate, p, tau, steer)
         self.terrain = Terrain(opt.terrain, {n: i_[n] for n in KINDS[opt.terrain].inputs})

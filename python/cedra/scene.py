@@ -7,6 +7,7 @@ before any code is generated.
     terrain = "bump"                # flat | slope | bump | bump3d | step | waves
     contact = "compliant"           # compliant (rigid: not built yet)
     steering = false                # 3d only: steering servo on wheels 5 and 6
+    locked_wheels = false           # wheels welded to their carriers (a parking brake; no torque inputs)
     stop_time = 15.0                # s, the FMU's DefaultExperiment
     output_interval = 0.01          # s, the DefaultExperiment's step size
     [solver]                        # defaults of the FMU's solver.* parameters
@@ -31,7 +32,8 @@ from .spec import ModelSpec
 from .terrain import KINDS
 
 SOLVERS = {"rk4": 0, "dopri5": 1, "rodas4": 2}
-TOP_KEYS = {"name", "description", "dims", "terrain", "contact", "steering", "stop_time", "output_interval",
+TOP_KEYS = {"name", "description", "dims", "terrain", "contact", "steering", "locked_wheels", "stop_time",
+            "output_interval",
             "solver", "parameters", "inputs", "start"}
 
 
@@ -115,15 +117,15 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     terrain = _choice(path, "terrain", terrain, set(KINDS))
     if dims == "2d" and terrain in ("bump3d", "waves"):
         _fail(path, "terrain", f"'{terrain}' varies along Y and needs dims = '3d'")
-    contact = data.get("contact", "compliant")
-    if contact == "rigid":
-        _fail(path, "contact", "'rigid' is not built yet (only 'compliant')")
-    contact = _choice(path, "contact", contact, {"compliant"})
+    contact = _choice(path, "contact", data.get("contact", "compliant"), {"compliant", "rigid"})
     steering = data.get("steering", False)
     if not isinstance(steering, bool):
         _fail(path, "steering", f"expected true or false, got {steering!r}")
     if dims == "2d" and steering:
         _fail(path, "steering", "a 2d scene has no steering")
+    locked = data.get("locked_wheels", False)
+    if not isinstance(locked, bool):
+        _fail(path, "locked_wheels", f"expected true or false, got {locked!r}")
     stop_time = _number(path, "stop_time", data.get("stop_time", 10.0), positive=True)
     interval = _number(path, "output_interval", data.get("output_interval", 0.01), positive=True)
     if interval > stop_time:
@@ -143,7 +145,7 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
         else:
             _fail(path, k, "unknown key (known: method, tol, h_max)")
 
-    opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact)
+    opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked)
     scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path))
     for section, table in (("parameters", param_table(opt)), ("inputs", input_table(opt))):
         known = {q.name: q for q in table}
