@@ -183,6 +183,10 @@ class CedraModel:
                           geo.point[j]))
             o.append((_out(f"wheel[{k}].psi", "rad", f"wheel {k} contact slope angle"), geo.slope))
             o.append((_out(f"wheel[{k}].slip", "m/s", f"wheel {k} slip speed at the contact"), c["slip"]))
+            if self.rigid:
+                o.append((_out(f"wheel[{k}].gap", "m", f"wheel {k} rim height above the terrain (negative: "
+                                                         "penetration; in contact: the constraint drift)"),
+                          -geo.depth))
         return o
 
     def functions(self) -> dict[str, ca.Function]:
