@@ -1,0 +1,142 @@
+"""Scene files: shipped scenes load and give valid specs; bad files fail with the file, the key and the reason;
+overrides end up as start values of the ModelSpec."""
+import pytest
+
+from cedra import scene as sc
+from cedra.parameters import DEFAULTS
+
+BASE = """\
+name = "t3d"
+description = "test scene"
+dims = "3d"
+terrain = "bump"
+contact = "compliant"
+steering = true
+stop_time = 2.0
+output_interval = 0.01
+
+[solver]
+method = "rk4"
+tol = 1e-5
+h_max = 0.002
+"""
+
+
+def write(tmp_path, text, name="scene.toml"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("name", sc.shipped())
+def test_shipped_scene_loads_and_checks(name):
+    s = sc.load_shipped(name)
+    assert s.name == name
+    spec = s.spec()
+    spec.check()
+    assert spec.name == name
+    assert spec.stop_time == s.stop_time and spec.solver == s.solver
+
+
+def test_shipped_scenes_present():
+    assert {"bump2d", "flat3d", "slope3d"} <= set(sc.shipped())
+    with pytest.raises(sc.SceneError, match="no_such_scene"):
+        sc.load_shipped("no_such_scene")
+
+
+def test_base_scene_is_valid(tmp_path):
+    s = sc.load(write(tmp_path, BASE))
+    assert s.options.dims == "3d" and s.options.terrain == "bump" and s.options.steering
+    assert s.solver == dict(method="rk4", tol=1e-5, h_max=0.002)
+
+
+def _replace(key, line):
+    """BASE with the top-level `key = ...` line replaced by `line` (or appended if not present)."""
+    lines = BASE.splitlines()
+    for k, ln in enumerate(lines):
+        if ln.split("=")[0].strip() == key and k < lines.index("[solver]"):
+            lines[k] = line
+            return "\n".join(lines) + "\n"
+    return line + "\n" + BASE
+
+
+BAD = [
+    # (id, scene text, key named in the message, words of the reason)
+    ("unknown_top", "colour = 'red'\n" + BASE, "colour", "unknown key"),
+    ("dims_4d", _replace("dims", 'dims = "4d"'), "dims", "must be one of"),
+    ("terrain_moon", _replace("terrain", 'terrain = "moon"'), "terrain", "must be one of"),
+    ("steering_2d", _replace("dims", 'dims = "2d"'), "steering", "2d scene has no steering"),
+    ("stop_time_neg", _replace("stop_time", "stop_time = -1.0"), "stop_time", "must be > 0"),
+    ("solver_euler", BASE.replace('method = "rk4"', 'method = "euler"'), "solver.method", "must be one of"),
+    ("solver_tol", BASE.replace("tol = 1e-5", "tol = -1"), "solver.tol", "must be > 0"),
+    ("R_w_neg", BASE + "[parameters]\nR_w = -0.1\n", "parameters.R_w", "must be >= 0.0001"),
+    ("param_unknown", BASE + "[parameters]\nno_such = 1.0\n", "parameters.no_such", "not a parameter"),
+    ("mu_string", BASE + '[inputs]\nmu = "high"\n', "inputs.mu", "expected a number"),
+    ("start_unknown", BASE + "[start]\nno_such = 1.0\n", "start.no_such", "not a coordinate"),
+    ("input_2d_y0", _replace("steering", "steering = false").replace('"3d"', '"2d"')
+     + "[inputs]\nterrain_y0 = 1.0\n", "inputs.terrain_y0", "of this scene"),
+    ("start_2d_yaw", _replace("steering", "steering = false").replace('"3d"', '"2d"') + "[start]\nyaw = 1.0\n",
+     "start.yaw", "not a coordinate"),
+    ("solver_unknown", BASE.replace("tol = 1e-5", "tol = 1e-5\norder = 4"), "solver.order", "unknown key"),
+    ("missing_name", BASE.replace('name = "t3d"\n', ""), "name", "missing"),
+]
+
+
+@pytest.mark.parametrize("case", BAD, ids=[c[0] for c in BAD])
+def test_bad_scene(tmp_path, case):
+    _, text, key, reason = case
+    p = write(tmp_path, text, f"bad_{case[0]}.toml")
+    with pytest.raises(sc.SceneError) as e:
+        sc.load(p)
+    msg = str(e.value)
+    assert str(p) in msg, msg
+    assert f"'{key}'" in msg, msg
+    assert reason in msg, msg
+
+
+def test_invalid_toml(tmp_path):
+    p = write(tmp_path, BASE + "[parameters\nR_w = 0.1\n", "broken.toml")
+    with pytest.raises(sc.SceneError) as e:
+        sc.load(p)
+    assert str(p) in str(e.value) and "not valid TOML" in str(e.value)
+
+
+def test_missing_file(tmp_path):
+    p = tmp_path / "nowhere.toml"
+    with pytest.raises(sc.SceneError) as e:
+        sc.load(p)
+    assert str(p) in str(e.value) and "cannot read" in str(e.value)
+
+
+def test_overrides_become_start_values(tmp_path):
+    text = BASE + """
+[parameters]
+m_B = 25.0
+ground_k = 2e5
+steer_k = 40
+
+[inputs]
+mu = 0.5
+"tau[2]" = 1.5
+"steer[1]" = 0.25
+terrain_h = 0.1
+
+[start]
+x = 1.5
+yaw = 0.3
+theta4 = -0.2
+"""
+    s = sc.load(write(tmp_path, text))
+    spec = s.spec()
+    spec.check()
+    par = {p.name: p.start for p in spec.params}
+    inp = {p.name: p.start for p in spec.inputs}
+    q0 = dict(zip(spec.q_names, spec.q_start))
+    assert par["m_B"] == 25.0 and par["ground_k"] == 2e5 and par["steer_k"] == 40.0
+    assert par["R_w"] == DEFAULTS["R_w"] and par["I_F"] == DEFAULTS["I_F"]          # the rest untouched
+    assert inp["mu"] == 0.5 and inp["tau[2]"] == 1.5 and inp["steer[1]"] == 0.25 and inp["terrain_h"] == 0.1
+    assert inp["tau[1]"] == 0.0 and inp["terrain_x0"] == 1.0
+    assert q0["x"] == 1.5 and q0["yaw"] == 0.3 and q0["theta4"] == -0.2
+    assert q0["z"] == pytest.approx(0.2, abs=1e-15) and q0["y"] == 0.0
+    assert spec.stop_time == 2.0 and spec.output_interval == 0.01
+    assert spec.solver == dict(method="rk4", tol=1e-5, h_max=0.002)
