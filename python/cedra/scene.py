@@ -152,7 +152,8 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
         values = {}
         for key, value in _table(path, data, section).items():
             if key not in known:
-                _fail(path, f"{section}.{key}", f"not a {section[:-1]} of this scene "
+                what = "an input" if section == "inputs" else "a parameter"
+                _fail(path, f"{section}.{key}", f"not {what} of this scene "
                       f"(dims={dims}, terrain={terrain}, steering={steering})")
             q = known[key]
             values[key] = _number(path, f"{section}.{key}", value, q.min, q.max)
