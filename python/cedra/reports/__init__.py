@@ -1,0 +1,1 @@
+"""Work-precision and stability reports (issue 5)."""
