@@ -1,0 +1,759 @@
+/* FMI 2.0 Co-Simulation interface of a cedra FMU (hand-written, the same for every model).
+ *
+ * Reference-FMUs style: the instance holds one plain struct `cedra_state` (time, x, inputs, parameters, start
+ * values, solver settings and counters, status flags, phase), so fmi2GetFMUstate/SetFMUstate are struct copies
+ * and serialization is a memcpy with a size/magic/GUID check. Scratch memory (CasADi work arrays, LU factors,
+ * solver workspace) lives outside the state.
+ *
+ * Logging: messages with a status other than fmi2OK (warnings, discards, errors) are always sent to the logger;
+ * logEvents messages (initialization, settle) only when debug logging is on for logEvents or logAll.
+ * Errors caused by a bad argument or call order leave the instance as it was (the call has no effect).
+ */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+
+#include "cedra_vars.h"
+#include "model_glue.h"
+#include "solver.h"
+
+#define NQ CEDRA_NQ
+#define NZ CEDRA_NZ
+#define NX CEDRA_NX
+#define DIM(n) ((n) > 0 ? (n) : 1)
+#define STATE_MAGIC 0xCED2A0F2u
+#define MSG_LEN 512
+
+enum phase {
+    PH_INSTANTIATED = 1 << 0,
+    PH_INIT = 1 << 1,
+    PH_STEP_COMPLETE = 1 << 2,
+    PH_STEP_FAILED = 1 << 3,    /* a step was discarded: fmi2Terminated is true */
+    PH_TERMINATED = 1 << 4,
+};
+#define PH_ANY (PH_INSTANTIATED | PH_INIT | PH_STEP_COMPLETE | PH_STEP_FAILED | PH_TERMINATED)
+#define PH_GET (PH_INIT | PH_STEP_COMPLETE | PH_STEP_FAILED | PH_TERMINATED)
+#define PH_SET (PH_INSTANTIATED | PH_INIT | PH_STEP_COMPLETE)
+
+enum log_cat { CAT_EVENTS, CAT_WARNING, CAT_DISCARD, CAT_ERROR, CAT_FATAL, CAT_ALL, N_CATS };
+static const char *const CAT_NAMES[N_CATS] = {"logEvents", "logStatusWarning", "logStatusDiscard",
+                                               "logStatusError", "logStatusFatal", "logAll"};
+
+typedef struct {
+    unsigned int magic;
+    unsigned int size;
+    char guid[64];
+    int phase;
+    double time;
+    double start_time;
+    double last_good_time;
+    int terminated;                 /* fmi2Terminated status */
+    int outputs_valid;              /* y (and x) agree with the current settings */
+    double x[NX];
+    double inp[DIM(CEDRA_NI)];
+    double par[DIM(CEDRA_NP)];
+    double y[DIM(CEDRA_NY)];
+    double q_start[NQ];
+    double u_start[NQ];
+    int settle;
+    solver_settings solver;
+    solver_stats stats;
+} cedra_state;
+
+typedef struct {
+    cedra_state s;
+    char *name;
+    fmi2CallbackLogger logger;
+    fmi2CallbackAllocateMemory alloc;
+    fmi2CallbackFreeMemory free;
+    fmi2ComponentEnvironment env;
+    int log_on[N_CATS];
+    model_ws *ws;
+    double *work;                   /* solver workspace (largest over the methods) */
+    double x_save[NX];
+    double y_tmp[DIM(CEDRA_NY)];
+    char msg[MSG_LEN];
+} instance;
+
+/* ------------------------------------------------------------------------------------------------ logging */
+
+static void log_msg(instance *c, fmi2Status status, int cat, const char *fmt, ...) {
+    char text[MSG_LEN], esc[2 * MSG_LEN];
+    va_list ap;
+    if (!c || !c->logger) return;
+    if (status == fmi2OK && !(c->log_on[cat] || c->log_on[CAT_ALL])) return;
+    va_start(ap, fmt);
+    vsnprintf(text, sizeof text, fmt, ap);
+    va_end(ap);
+    /* the logger takes a printf format: pass the finished text with '%' escaped */
+    size_t k = 0;
+    for (const char *p = text; *p && k + 2 < sizeof esc; p++) {
+        if (*p == '%') esc[k++] = '%';
+        esc[k++] = *p;
+    }
+    esc[k] = '\0';
+    c->logger(c->env, c->name ? c->name : "", status, CAT_NAMES[cat], esc);
+}
+
+#define FAIL(c, ...) (log_msg((c), fmi2Error, CAT_ERROR, __VA_ARGS__), fmi2Error)
+
+static const char *phase_name(int ph) {
+    switch (ph) {
+        case PH_INSTANTIATED: return "instantiated";
+        case PH_INIT: return "initialization mode";
+        case PH_STEP_COMPLETE: return "step complete";
+        case PH_STEP_FAILED: return "step failed (terminated)";
+        case PH_TERMINATED: return "terminated";
+        default: return "unknown";
+    }
+}
+
+/* 1 if the call is allowed in the current phase, else logs and returns 0 */
+static int allowed(instance *c, const char *fn, int mask) {
+    if (c->s.phase & mask) return 1;
+    log_msg(c, fmi2Error, CAT_ERROR, "%s: not allowed in state %s", fn, phase_name(c->s.phase));
+    return 0;
+}
+
+/* -------------------------------------------------------------------------------------------- state setup */
+
+static void set_defaults(instance *c, double start_time) {
+    cedra_state *s = &c->s;
+    memset(s, 0, sizeof *s);
+    s->magic = STATE_MAGIC;
+    s->size = (unsigned int)sizeof *s;
+    snprintf(s->guid, sizeof s->guid, "%s", CEDRA_GUID);
+    s->phase = PH_INSTANTIATED;
+    s->time = s->start_time = s->last_good_time = start_time;
+    for (int i = 0; i < CEDRA_NP; i++) s->par[i] = CEDRA_PAR_START[i];
+    for (int i = 0; i < CEDRA_NI; i++) s->inp[i] = CEDRA_INP_START[i];
+    for (int i = 0; i < NQ; i++) s->q_start[i] = CEDRA_Q_START[i];
+    for (int i = 0; i < CEDRA_NVARS; i++) {
+        const cedra_var *v = &CEDRA_VARS[i];
+        if (v->kind == CEDRA_K_U_START) s->u_start[v->index] = v->start;
+        if (v->kind == CEDRA_K_SETTLE) s->settle = v->start != 0.0;
+    }
+    s->solver.method = CEDRA_SOLVER_METHOD;
+    s->solver.tol = CEDRA_SOLVER_TOL;
+    s->solver.h_max = CEDRA_SOLVER_H_MAX;
+}
+
+/* x from the start values (settled if start.settle) and the outputs there; 0 or 1 (logged) */
+static int initial_state(instance *c, const char *fn) {
+    cedra_state *s = &c->s;
+    double *q = s->x, *u = s->x + NQ;
+    if (s->outputs_valid) return 0;
+    model_bind(c->ws, s->inp, s->par);
+    memcpy(q, s->q_start, sizeof(double) * NQ);
+    memcpy(u, s->u_start, sizeof(double) * NQ);
+    for (int i = 0; i < NZ; i++) s->x[2 * NQ + i] = 0.0;
+    if (s->settle) {
+        if (model_settle(c->ws, q)) {
+            log_msg(c, fmi2Error, CAT_ERROR, "%s: static equilibrium at the start failed: %s", fn,
+                    model_message(c->ws));
+            return 1;
+        }
+        log_msg(c, fmi2OK, CAT_EVENTS, "%s: settled the start pose in static equilibrium", fn);
+    }
+    if (!model_check(c->ws, q, u)) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: the start state cannot be evaluated: %s", fn, model_message(c->ws));
+        return 1;
+    }
+    if (model_outputs(c->ws, s->x, c->y_tmp)) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: outputs at the start: %s", fn, model_message(c->ws));
+        return 1;
+    }
+    memcpy(s->y, c->y_tmp, sizeof(double) * CEDRA_NY);
+    s->outputs_valid = 1;
+    return 0;
+}
+
+/* ---------------------------------------------------------------------------------------- generic functions */
+
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn, size_t nCategories,
+                               const fmi2String categories[]) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (nCategories > 0 && !categories) return FAIL(c, "fmi2SetDebugLogging: categories is NULL");
+    for (size_t k = 0; k < nCategories; k++) {
+        int found = 0;
+        for (int j = 0; j < N_CATS && categories[k]; j++) found |= strcmp(categories[k], CAT_NAMES[j]) == 0;
+        if (!found)
+            return FAIL(c, "fmi2SetDebugLogging: unknown log category %s", categories[k] ? categories[k] : "(NULL)");
+    }
+    if (nCategories == 0) {
+        for (int j = 0; j < N_CATS; j++) c->log_on[j] = loggingOn != fmi2False;
+    } else {
+        for (size_t k = 0; k < nCategories; k++)
+            for (int j = 0; j < N_CATS; j++)
+                if (strcmp(categories[k], CAT_NAMES[j]) == 0) c->log_on[j] = loggingOn != fmi2False;
+    }
+    return fmi2OK;
+}
+
+static void free_instance(instance *c) {
+    fmi2CallbackFreeMemory fr = c->free;
+    if (c->work) fr(c->work);
+    if (c->ws) fr(c->ws);
+    if (c->name) fr(c->name);
+    fr(c);
+}
+
+fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                              fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
+                              fmi2Boolean visible, fmi2Boolean loggingOn) {
+    (void)fmuResourceLocation;
+    (void)visible;
+    if (!functions || !functions->logger) return NULL;
+    instance tmp;                     /* for logging before the instance exists */
+    memset(&tmp, 0, sizeof tmp);
+    tmp.logger = functions->logger;
+    tmp.env = functions->componentEnvironment;
+    tmp.name = (char *)(instanceName ? instanceName : "");
+    if (!functions->allocateMemory || !functions->freeMemory) {
+        log_msg(&tmp, fmi2Error, CAT_ERROR, "fmi2Instantiate: allocateMemory and freeMemory are required");
+        return NULL;
+    }
+    if (!instanceName || !instanceName[0]) {
+        log_msg(&tmp, fmi2Error, CAT_ERROR, "fmi2Instantiate: instanceName is NULL or empty");
+        return NULL;
+    }
+    if (fmuType != fmi2CoSimulation) {
+        log_msg(&tmp, fmi2Error, CAT_ERROR, "fmi2Instantiate: %s supports Co-Simulation only (fmuType %d)",
+                CEDRA_MODEL_IDENTIFIER, (int)fmuType);
+        return NULL;
+    }
+    if (!fmuGUID || strcmp(fmuGUID, CEDRA_GUID) != 0) {
+        log_msg(&tmp, fmi2Error, CAT_ERROR, "fmi2Instantiate: GUID %s does not match the FMU's GUID %s",
+                fmuGUID ? fmuGUID : "(NULL)", CEDRA_GUID);
+        return NULL;
+    }
+    instance *c = (instance *)functions->allocateMemory(1, sizeof(instance));
+    if (!c) {
+        log_msg(&tmp, fmi2Fatal, CAT_FATAL, "fmi2Instantiate: out of memory");
+        return NULL;
+    }
+    memset(c, 0, sizeof *c);
+    c->logger = functions->logger;
+    c->alloc = functions->allocateMemory;
+    c->free = functions->freeMemory;
+    c->env = functions->componentEnvironment;
+    size_t nw = 0;
+    for (int m = 0; m < SOLVER_N_METHODS; m++) {
+        size_t w = solver_workspace_size(m, NX);
+        if (w > nw) nw = w;
+    }
+    c->name = (char *)c->alloc(strlen(instanceName) + 1, 1);
+    c->ws = (model_ws *)c->alloc(1, model_ws_size());
+    c->work = (double *)c->alloc(nw > 0 ? nw : 1, sizeof(double));
+    if (!c->name || !c->ws || !c->work) {
+        log_msg(&tmp, fmi2Fatal, CAT_FATAL, "fmi2Instantiate: out of memory");
+        free_instance(c);
+        return NULL;
+    }
+    strcpy(c->name, instanceName);
+    for (int j = 0; j < N_CATS; j++) c->log_on[j] = loggingOn != fmi2False;
+    set_defaults(c, 0.0);
+    return (fmi2Component)c;
+}
+
+void fmi2FreeInstance(fmi2Component comp) {
+    instance *c = (instance *)comp;
+    if (c) free_instance(c);
+}
+
+fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined, fmi2Real tolerance,
+                               fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2SetupExperiment", PH_INSTANTIATED)) return fmi2Error;
+    if (!isfinite(startTime)) return FAIL(c, "fmi2SetupExperiment: startTime = %g is not finite", startTime);
+    if (stopTimeDefined && !(stopTime >= startTime))
+        return FAIL(c, "fmi2SetupExperiment: stopTime = %g is before startTime = %g", stopTime, startTime);
+    if (toleranceDefined)
+        log_msg(c, fmi2OK, CAT_EVENTS, "fmi2SetupExperiment: tolerance %g ignored (the parameter solver.tol sets "
+                "the embedded solver's tolerance)", tolerance);
+    c->s.time = c->s.start_time = c->s.last_good_time = startTime;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2EnterInitializationMode", PH_INSTANTIATED)) return fmi2Error;
+    c->s.phase = PH_INIT;
+    c->s.outputs_valid = 0;
+    return fmi2OK;
+}
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2ExitInitializationMode", PH_INIT)) return fmi2Error;
+    if (initial_state(c, "fmi2ExitInitializationMode")) return fmi2Error;
+    c->s.phase = PH_STEP_COMPLETE;
+    c->s.last_good_time = c->s.time;
+    memset(&c->s.stats, 0, sizeof c->s.stats);
+    log_msg(c, fmi2OK, CAT_EVENTS, "fmi2ExitInitializationMode: initialized at t=%g", c->s.time);
+    return fmi2OK;
+}
+
+fmi2Status fmi2Terminate(fmi2Component comp) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2Terminate", PH_STEP_COMPLETE | PH_STEP_FAILED)) return fmi2Error;
+    c->s.phase = PH_TERMINATED;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Reset(fmi2Component comp) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2Reset", PH_ANY)) return fmi2Error;
+    set_defaults(c, 0.0);
+    return fmi2OK;
+}
+
+/* ------------------------------------------------------------------------------------------- variable access */
+
+static const char *TYPE_NAMES[] = {"Real", "Integer", "Boolean"};
+
+/* the variable with value reference vr and type `type`, or NULL (logged) */
+static const cedra_var *lookup(instance *c, const char *fn, fmi2ValueReference vr, int type) {
+    if (vr >= (fmi2ValueReference)CEDRA_NVARS) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: unknown value reference %u", fn, (unsigned)vr);
+        return NULL;
+    }
+    const cedra_var *v = &CEDRA_VARS[vr];
+    if (type >= 0 && v->type != type) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: variable %s (vr %u) is a%s %s", fn, v->name, (unsigned)vr,
+                v->type == CEDRA_INTEGER ? "n" : "", TYPE_NAMES[v->type]);
+        return NULL;
+    }
+    return v;
+}
+
+static int check_array_args(instance *c, const char *fn, const void *vr, size_t nvr, const void *value) {
+    if (nvr > 0 && !vr) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: vr is NULL", fn);
+        return 0;
+    }
+    if (nvr > 0 && !value) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: value is NULL", fn);
+        return 0;
+    }
+    return 1;
+}
+
+/* value of a variable as a double (Integer/Boolean too); outputs in initialization mode are computed first */
+static int get_value(instance *c, const char *fn, const cedra_var *v, double *out) {
+    cedra_state *s = &c->s;
+    switch (v->kind) {
+        case CEDRA_K_PAR: *out = s->par[v->index]; return 0;
+        case CEDRA_K_INP: *out = s->inp[v->index]; return 0;
+        case CEDRA_K_Q_START: *out = s->q_start[v->index]; return 0;
+        case CEDRA_K_U_START: *out = s->u_start[v->index]; return 0;
+        case CEDRA_K_SETTLE: *out = s->settle; return 0;
+        case CEDRA_K_SOLVER:
+            *out = v->index == 0 ? (double)s->solver.method : v->index == 1 ? s->solver.tol : s->solver.h_max;
+            return 0;
+        case CEDRA_K_STAT:
+            *out = (double)(v->index == 0 ? s->stats.steps : v->index == 1 ? s->stats.rejected
+                                                                          : s->stats.rhs_evals);
+            return 0;
+        case CEDRA_K_OUT:
+            if (s->phase == PH_INIT && initial_state(c, fn)) return 1;
+            *out = s->y[v->index];
+            return 0;
+        default: return 1;
+    }
+}
+
+fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2GetReal", PH_GET) || !check_array_args(c, "fmi2GetReal", vr, nvr, value)) return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        const cedra_var *v = lookup(c, "fmi2GetReal", vr[k], CEDRA_REAL);
+        if (!v || get_value(c, "fmi2GetReal", v, &value[k])) return fmi2Error;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2GetInteger", PH_GET) || !check_array_args(c, "fmi2GetInteger", vr, nvr, value))
+        return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        double d;
+        const cedra_var *v = lookup(c, "fmi2GetInteger", vr[k], CEDRA_INTEGER);
+        if (!v || get_value(c, "fmi2GetInteger", v, &d)) return fmi2Error;
+        d = nearbyint(d);
+        value[k] = d > 2147483647.0 ? 2147483647 : d < -2147483648.0 ? (-2147483647 - 1) : (fmi2Integer)d;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2GetBoolean", PH_GET) || !check_array_args(c, "fmi2GetBoolean", vr, nvr, value))
+        return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        double d;
+        const cedra_var *v = lookup(c, "fmi2GetBoolean", vr[k], CEDRA_BOOLEAN);
+        if (!v || get_value(c, "fmi2GetBoolean", v, &d)) return fmi2Error;
+        value[k] = d != 0.0 ? fmi2True : fmi2False;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2GetString", PH_GET) || !check_array_args(c, "fmi2GetString", vr, nvr, value))
+        return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        const cedra_var *v = lookup(c, "fmi2GetString", vr[k], -1);
+        if (v) log_msg(c, fmi2Error, CAT_ERROR, "fmi2GetString: variable %s (vr %u) is not a String", v->name,
+                       (unsigned)vr[k]);
+        return fmi2Error;
+    }
+    return fmi2OK;
+}
+
+/* check and store one value; 0 or 1 (logged) */
+static int set_value(instance *c, const char *fn, const cedra_var *v, double d) {
+    cedra_state *s = &c->s;
+    if (v->causality == CEDRA_OUTPUT) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: variable %s (vr %u) is an output (calculated), it cannot be set", fn,
+                v->name, v->vr);
+        return 1;
+    }
+    if (v->causality == CEDRA_PARAMETER && !(s->phase & (PH_INSTANTIATED | PH_INIT))) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: parameter %s (vr %u) is fixed: it can be set only before "
+                "fmi2ExitInitializationMode", fn, v->name, v->vr);
+        return 1;
+    }
+    if (!isfinite(d)) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: variable %s (vr %u) = %g is not finite", fn, v->name, v->vr, d);
+        return 1;
+    }
+    if (d < v->min || (v->min_exclusive && d == v->min)) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: variable %s (vr %u) = %.17g must be %s %.17g", fn, v->name, v->vr,
+                d, v->min_exclusive ? ">" : ">=", v->min);
+        return 1;
+    }
+    if (d > v->max) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: variable %s (vr %u) = %.17g must be <= %.17g", fn, v->name, v->vr, d,
+                v->max);
+        return 1;
+    }
+    switch (v->kind) {
+        case CEDRA_K_PAR: s->par[v->index] = d; break;
+        case CEDRA_K_INP: s->inp[v->index] = d; break;
+        case CEDRA_K_Q_START: s->q_start[v->index] = d; break;
+        case CEDRA_K_U_START: s->u_start[v->index] = d; break;
+        case CEDRA_K_SETTLE: s->settle = d != 0.0; break;
+        case CEDRA_K_SOLVER:
+            if (v->index == 0) s->solver.method = (int)d;
+            else if (v->index == 1) s->solver.tol = d;
+            else s->solver.h_max = d;
+            break;
+        default: return 1;
+    }
+    if (s->phase & (PH_INSTANTIATED | PH_INIT)) s->outputs_valid = 0;
+    return 0;
+}
+
+fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2SetReal", PH_SET) || !check_array_args(c, "fmi2SetReal", vr, nvr, value)) return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        const cedra_var *v = lookup(c, "fmi2SetReal", vr[k], CEDRA_REAL);
+        if (!v || set_value(c, "fmi2SetReal", v, value[k])) return fmi2Error;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                          const fmi2Integer value[]) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2SetInteger", PH_SET) || !check_array_args(c, "fmi2SetInteger", vr, nvr, value))
+        return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        const cedra_var *v = lookup(c, "fmi2SetInteger", vr[k], CEDRA_INTEGER);
+        if (!v || set_value(c, "fmi2SetInteger", v, (double)value[k])) return fmi2Error;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                          const fmi2Boolean value[]) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2SetBoolean", PH_SET) || !check_array_args(c, "fmi2SetBoolean", vr, nvr, value))
+        return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        const cedra_var *v = lookup(c, "fmi2SetBoolean", vr[k], CEDRA_BOOLEAN);
+        if (!v || set_value(c, "fmi2SetBoolean", v, value[k] ? 1.0 : 0.0)) return fmi2Error;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2SetString", PH_SET) || !check_array_args(c, "fmi2SetString", vr, nvr, value))
+        return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        const cedra_var *v = lookup(c, "fmi2SetString", vr[k], -1);
+        if (v) log_msg(c, fmi2Error, CAT_ERROR, "fmi2SetString: variable %s (vr %u) is not a String", v->name,
+                       (unsigned)vr[k]);
+        return fmi2Error;
+    }
+    return fmi2OK;
+}
+
+/* ----------------------------------------------------------------------------------------------- FMU state */
+
+static int state_ok(instance *c, const char *fn, const cedra_state *st) {
+    if (st->magic != STATE_MAGIC || st->size != sizeof(cedra_state) || strcmp(st->guid, CEDRA_GUID) != 0 ||
+        !(st->phase & PH_ANY)) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: not a state of this FMU (%s)", fn, CEDRA_MODEL_IDENTIFIER);
+        return 0;
+    }
+    return 1;
+}
+
+fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!FMUstate) return FAIL(c, "fmi2GetFMUstate: FMUstate is NULL");
+    cedra_state *st = (cedra_state *)*FMUstate;
+    if (!st) {
+        st = (cedra_state *)c->alloc(1, sizeof(cedra_state));
+        if (!st) {
+            log_msg(c, fmi2Fatal, CAT_FATAL, "fmi2GetFMUstate: out of memory");
+            return fmi2Fatal;
+        }
+    } else if (!state_ok(c, "fmi2GetFMUstate", st)) {
+        return fmi2Error;
+    }
+    memcpy(st, &c->s, sizeof *st);
+    *FMUstate = (fmi2FMUstate)st;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate FMUstate) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!FMUstate) return FAIL(c, "fmi2SetFMUstate: FMUstate is NULL");
+    if (!state_ok(c, "fmi2SetFMUstate", (const cedra_state *)FMUstate)) return fmi2Error;
+    memcpy(&c->s, FMUstate, sizeof c->s);
+    return fmi2OK;
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!FMUstate) return FAIL(c, "fmi2FreeFMUstate: FMUstate is NULL");
+    if (*FMUstate) c->free(*FMUstate);
+    *FMUstate = NULL;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate FMUstate, size_t *size) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!FMUstate || !size) return FAIL(c, "fmi2SerializedFMUstateSize: FMUstate or size is NULL");
+    *size = sizeof(cedra_state);
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate FMUstate, fmi2Byte serializedState[],
+                                 size_t size) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!FMUstate || !serializedState) return FAIL(c, "fmi2SerializeFMUstate: FMUstate or serializedState is NULL");
+    if (size != sizeof(cedra_state))
+        return FAIL(c, "fmi2SerializeFMUstate: size %zu, the serialized state has %zu bytes", size,
+                    sizeof(cedra_state));
+    if (!state_ok(c, "fmi2SerializeFMUstate", (const cedra_state *)FMUstate)) return fmi2Error;
+    memcpy(serializedState, FMUstate, size);
+    return fmi2OK;
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte serializedState[], size_t size,
+                                   fmi2FMUstate *FMUstate) {
+    instance *c = (instance *)comp;
+    cedra_state tmp;
+    if (!c) return fmi2Error;
+    if (!serializedState || !FMUstate)
+        return FAIL(c, "fmi2DeSerializeFMUstate: serializedState or FMUstate is NULL");
+    if (size != sizeof(cedra_state))
+        return FAIL(c, "fmi2DeSerializeFMUstate: size %zu, a serialized state of %s has %zu bytes", size,
+                    CEDRA_MODEL_IDENTIFIER, sizeof(cedra_state));
+    memcpy(&tmp, serializedState, sizeof tmp);
+    if (!state_ok(c, "fmi2DeSerializeFMUstate", &tmp)) return fmi2Error;
+    if (!*FMUstate) {
+        *FMUstate = c->alloc(1, sizeof(cedra_state));
+        if (!*FMUstate) {
+            log_msg(c, fmi2Fatal, CAT_FATAL, "fmi2DeSerializeFMUstate: out of memory");
+            return fmi2Fatal;
+        }
+    }
+    memcpy(*FMUstate, &tmp, sizeof tmp);
+    return fmi2OK;
+}
+
+/* ------------------------------------------------------------------------------------- not supported */
+
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component comp, const fmi2ValueReference vUnknown_ref[],
+                                        size_t nUnknown, const fmi2ValueReference vKnown_ref[], size_t nKnown,
+                                        const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
+    (void)vUnknown_ref, (void)nUnknown, (void)vKnown_ref, (void)nKnown, (void)dvKnown, (void)dvUnknown;
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    return FAIL(c, "fmi2GetDirectionalDerivative: not supported (providesDirectionalDerivative=false)");
+}
+
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                                       const fmi2Integer order[], const fmi2Real value[]) {
+    (void)vr, (void)nvr, (void)order, (void)value;
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    return FAIL(c, "fmi2SetRealInputDerivatives: not supported (canInterpolateInputs=false)");
+}
+
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                                        const fmi2Integer order[], fmi2Real value[]) {
+    (void)vr, (void)nvr, (void)order, (void)value;
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    return FAIL(c, "fmi2GetRealOutputDerivatives: not supported (maxOutputDerivativeOrder=0)");
+}
+
+/* ------------------------------------------------------------------------------------------------- stepping */
+
+static fmi2Status discard(instance *c, double t, const char *why) {
+    cedra_state *s = &c->s;
+    memcpy(s->x, c->x_save, sizeof(double) * NX);   /* back to the last good state (time t, outputs kept) */
+    s->phase = PH_STEP_FAILED;
+    s->terminated = 1;
+    s->last_good_time = t;
+    log_msg(c, fmi2Discard, CAT_DISCARD, "fmi2DoStep: step discarded at t=%.17g, simulation terminated: %s", t,
+            why);
+    return fmi2Discard;
+}
+
+fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
+                      fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
+    (void)noSetFMUStatePriorToCurrentPoint;
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    cedra_state *s = &c->s;
+    double t = currentCommunicationPoint, h = communicationStepSize;
+    if (s->phase == PH_STEP_FAILED)
+        return FAIL(c, "fmi2DoStep: the simulation was terminated at t=%.17g after a discarded step (restore a "
+                    "state with fmi2SetFMUstate or call fmi2Reset)", s->last_good_time);
+    if (!allowed(c, "fmi2DoStep", PH_STEP_COMPLETE)) return fmi2Error;
+    if (!isfinite(h) || h <= 0) return FAIL(c, "fmi2DoStep: communicationStepSize = %g must be > 0", h);
+    if (!isfinite(t) || fabs(t - s->time) > 1e-9 * fmax(1.0, fabs(s->time)))
+        return FAIL(c, "fmi2DoStep: currentCommunicationPoint = %.17g, but the FMU is at t=%.17g", t, s->time);
+    if (s->solver.method < 0 || s->solver.method >= SOLVER_N_METHODS)
+        return FAIL(c, "fmi2DoStep: solver.method = %d is not in 0..%d", s->solver.method, SOLVER_N_METHODS - 1);
+    model_bind(c->ws, s->inp, s->par);
+    memcpy(c->x_save, s->x, sizeof(double) * NX);
+    c->msg[0] = '\0';
+    model_clear_message(c->ws);
+    if (solver_integrate(&s->solver, NX, s->x, t, t + h, model_rhs, model_jac, c->ws, c->work, &s->stats, c->msg,
+                         sizeof c->msg))
+    {
+        char why[2 * MSG_LEN];
+        const char *m = model_message(c->ws);
+        snprintf(why, sizeof why, "%s%s%s", c->msg[0] ? c->msg : "the solver failed", m[0] ? "; model: " : "", m);
+        return discard(c, t, why);
+    }
+    for (int i = 0; i < NX; i++)
+        if (!isfinite(s->x[i])) return discard(c, t, "the state is not finite after the step");
+    if (model_outputs(c->ws, s->x, c->y_tmp)) return discard(c, t, model_message(c->ws));
+    memcpy(s->y, c->y_tmp, sizeof(double) * CEDRA_NY);
+    s->time = t + h;
+    s->last_good_time = s->time;
+    return fmi2OK;
+}
+
+fmi2Status fmi2CancelStep(fmi2Component comp) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    return FAIL(c, "fmi2CancelStep: not allowed in state %s (fmi2DoStep is synchronous, never pending)",
+                phase_name(c->s.phase));
+}
+
+#define PH_STATUS (PH_STEP_COMPLETE | PH_STEP_FAILED | PH_TERMINATED)
+
+fmi2Status fmi2GetStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Status *value) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2GetStatus", PH_STATUS)) return fmi2Error;
+    if (!value) return FAIL(c, "fmi2GetStatus: value is NULL");
+    if (s == fmi2DoStepStatus) {   /* only meaningful after fmi2Pending, which this FMU never returns */
+        *value = c->s.phase == PH_STEP_FAILED ? fmi2Discard : fmi2OK;
+        return fmi2OK;
+    }
+    return FAIL(c, "fmi2GetStatus: status kind %d not supported", (int)s);
+}
+
+fmi2Status fmi2GetRealStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Real *value) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2GetRealStatus", PH_STATUS)) return fmi2Error;
+    if (!value) return FAIL(c, "fmi2GetRealStatus: value is NULL");
+    if (s == fmi2LastSuccessfulTime) {
+        *value = c->s.last_good_time;
+        return fmi2OK;
+    }
+    return FAIL(c, "fmi2GetRealStatus: status kind %d not supported", (int)s);
+}
+
+fmi2Status fmi2GetIntegerStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Integer *value) {
+    instance *c = (instance *)comp;
+    (void)value;
+    if (!c) return fmi2Error;
+    return FAIL(c, "fmi2GetIntegerStatus: status kind %d not supported", (int)s);
+}
+
+fmi2Status fmi2GetBooleanStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Boolean *value) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2GetBooleanStatus", PH_STATUS)) return fmi2Error;
+    if (!value) return FAIL(c, "fmi2GetBooleanStatus: value is NULL");
+    if (s == fmi2Terminated) {
+        *value = c->s.terminated ? fmi2True : fmi2False;
+        return fmi2OK;
+    }
+    return FAIL(c, "fmi2GetBooleanStatus: status kind %d not supported", (int)s);
+}
+
+fmi2Status fmi2GetStringStatus(fmi2Component comp, const fmi2StatusKind s, fmi2String *value) {
+    instance *c = (instance *)comp;
+    if (!c) return fmi2Error;
+    if (!allowed(c, "fmi2GetStringStatus", PH_STATUS)) return fmi2Error;
+    if (!value) return FAIL(c, "fmi2GetStringStatus: value is NULL");
+    if (s == fmi2PendingStatus) {
+        *value = "";
+        return fmi2OK;
+    }
+    return FAIL(c, "fmi2GetStringStatus: status kind %d not supported", (int)s);
+}

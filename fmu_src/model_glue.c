@@ -1,0 +1,259 @@
+/* The model side of the FMU (see model_glue.h): evaluates the generated CasADi functions of the contract
+ * (python/cedra/spec.py) on plain arrays. Sizes come from the generated cedra_vars.h. */
+#include "model_glue.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "cedra_model.h"
+#include "cedra_vars.h"
+#include "linalg.h"
+
+#define NQ CEDRA_NQ
+#define NZ CEDRA_NZ
+#define NX CEDRA_NX
+#define NS CEDRA_NS
+#define DIM(n) ((n) > 0 ? (n) : 1)
+#define MAX2(a, b) ((a) > (b) ? (a) : (b))
+
+/* CasADi work sizes: the largest over the functions */
+#define SZ_ARG MAX2(MAX2(MAX2(cedra_M_SZ_ARG, cedra_f_SZ_ARG), MAX2(cedra_rjac_SZ_ARG, cedra_out_SZ_ARG)), \
+                    MAX2(MAX2(cedra_settle_SZ_ARG, cedra_guess_SZ_ARG), cedra_check_SZ_ARG))
+#define SZ_RES MAX2(MAX2(MAX2(cedra_M_SZ_RES, cedra_f_SZ_RES), MAX2(cedra_rjac_SZ_RES, cedra_out_SZ_RES)), \
+                    MAX2(MAX2(cedra_settle_SZ_RES, cedra_guess_SZ_RES), cedra_check_SZ_RES))
+#define SZ_IW MAX2(MAX2(MAX2(cedra_M_SZ_IW, cedra_f_SZ_IW), MAX2(cedra_rjac_SZ_IW, cedra_out_SZ_IW)), \
+                   MAX2(MAX2(cedra_settle_SZ_IW, cedra_guess_SZ_IW), cedra_check_SZ_IW))
+#define SZ_W MAX2(MAX2(MAX2(cedra_M_SZ_W, cedra_f_SZ_W), MAX2(cedra_rjac_SZ_W, cedra_out_SZ_W)), \
+                  MAX2(MAX2(cedra_settle_SZ_W, cedra_guess_SZ_W), cedra_check_SZ_W))
+
+#define SETTLE_MAX_ITER 60
+#define SETTLE_MAX_HALVINGS 30
+#define SETTLE_RTOL 1e-10
+
+struct model_ws {
+    const double *inp, *par;
+    const casadi_real *arg[DIM(SZ_ARG)];
+    casadi_real *res[DIM(SZ_RES)];
+    casadi_int iw[DIM(SZ_IW)];
+    casadi_real w[DIM(SZ_W)];
+    double M[NQ * NQ];
+    int piv[NQ];
+    double f[NQ], g[DIM(NZ)];
+    double drdq[NQ * NQ], drdu[NQ * NQ], dgdq[DIM(NZ * NQ)], dgdu[DIM(NZ * NQ)];
+    double col[NQ];
+    double sres[DIM(NS)], sjac[DIM(NS * NS)], sdq[DIM(NS)], sq[NQ];
+    int spiv[DIM(NS)];
+    double ok;
+    char msg[256];
+};
+
+size_t model_ws_size(void) { return sizeof(model_ws); }
+
+void model_bind(model_ws *ws, const double *inp, const double *par) {
+    ws->inp = inp;
+    ws->par = par;
+}
+
+const char *model_message(const model_ws *ws) { return ws->msg; }
+
+void model_clear_message(model_ws *ws) { ws->msg[0] = '\0'; }
+
+static int all_finite(const double *v, int n) {
+    for (int i = 0; i < n; i++)
+        if (!isfinite(v[i])) return 0;
+    return 1;
+}
+
+int model_check(model_ws *ws, const double *q, const double *u) {
+    ws->arg[0] = q;
+    ws->arg[1] = u;
+    ws->arg[2] = ws->inp;
+    ws->arg[3] = ws->par;
+    ws->res[0] = &ws->ok;
+    if (cedra_check(ws->arg, ws->res, ws->iw, ws->w, 0) || !(ws->ok >= 0.5)) {
+        snprintf(ws->msg, sizeof ws->msg, "the state cannot be evaluated (cedra_check)");
+        return 0;
+    }
+    return 1;
+}
+
+/* M and its LU factors at q, f and g at (q, u) */
+static int eval_dynamics(model_ws *ws, const double *q, const double *u, double t) {
+    ws->arg[0] = q;
+    ws->arg[1] = ws->par;
+    ws->res[0] = ws->M;
+    if (cedra_M(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        snprintf(ws->msg, sizeof ws->msg, "cedra_M failed at t=%.17g", t);
+        return 1;
+    }
+    ws->arg[0] = q;
+    ws->arg[1] = u;
+    ws->arg[2] = ws->inp;
+    ws->arg[3] = ws->par;
+    ws->res[0] = ws->f;
+    ws->res[1] = ws->g;
+    if (cedra_f(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        snprintf(ws->msg, sizeof ws->msg, "cedra_f failed at t=%.17g", t);
+        return 1;
+    }
+    if (linalg_lu_factor(NQ, ws->M, ws->piv)) {
+        snprintf(ws->msg, sizeof ws->msg, "the mass matrix is singular or not finite at t=%.17g", t);
+        return 1;
+    }
+    return 0;
+}
+
+int model_rhs(void *ctx, double t, const double *x, double *xdot) {
+    model_ws *ws = (model_ws *)ctx;
+    const double *q = x, *u = x + NQ;
+    if (!all_finite(x, NX)) {
+        snprintf(ws->msg, sizeof ws->msg, "the state is not finite at t=%.17g", t);
+        return 1;
+    }
+    if (!model_check(ws, q, u)) {
+        snprintf(ws->msg, sizeof ws->msg, "the state cannot be evaluated (cedra_check) at t=%.17g", t);
+        return 1;
+    }
+    if (eval_dynamics(ws, q, u, t)) return 1;
+    memcpy(xdot, u, sizeof(double) * NQ);
+    memcpy(xdot + NQ, ws->f, sizeof(double) * NQ);
+    linalg_lu_solve(NQ, ws->M, ws->piv, xdot + NQ);
+    if (NZ > 0) memcpy(xdot + 2 * NQ, ws->g, sizeof(double) * NZ);
+    if (!all_finite(xdot, NX)) {
+        snprintf(ws->msg, sizeof ws->msg, "the derivative is not finite at t=%.17g", t);
+        return 1;
+    }
+    return 0;
+}
+
+/* dF/dx = [[0, I, 0], [-M^-1 dr_dq, -M^-1 dr_du, 0], [dg_dq, dg_du, 0]] at a = udot, column-major NX x NX */
+int model_jac(void *ctx, double t, const double *x, const double *xdot, double *jac) {
+    model_ws *ws = (model_ws *)ctx;
+    const double *q = x, *u = x + NQ;
+    if (eval_dynamics(ws, q, u, t)) return 1;
+    ws->arg[0] = q;
+    ws->arg[1] = u;
+    ws->arg[2] = xdot + NQ;
+    ws->arg[3] = ws->inp;
+    ws->arg[4] = ws->par;
+    ws->res[0] = ws->drdq;
+    ws->res[1] = ws->drdu;
+    ws->res[2] = ws->dgdq;
+    ws->res[3] = ws->dgdu;
+    if (cedra_rjac(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        snprintf(ws->msg, sizeof ws->msg, "cedra_rjac failed at t=%.17g", t);
+        return 1;
+    }
+    memset(jac, 0, sizeof(double) * NX * NX);
+    for (int j = 0; j < NQ; j++) {
+        jac[j + (size_t)(NQ + j) * NX] = 1.0;                       /* dqdot/du = I */
+        for (int blk = 0; blk < 2; blk++) {                          /* column j of q, then of u */
+            const double *dr = blk ? ws->drdu : ws->drdq;
+            for (int i = 0; i < NQ; i++) ws->col[i] = -dr[i + (size_t)j * NQ];
+            linalg_lu_solve(NQ, ws->M, ws->piv, ws->col);
+            int cj = blk * NQ + j;
+            for (int i = 0; i < NQ; i++) jac[NQ + i + (size_t)cj * NX] = ws->col[i];
+            for (int i = 0; i < NZ; i++)
+                jac[2 * NQ + i + (size_t)cj * NX] = (blk ? ws->dgdu : ws->dgdq)[i + (size_t)j * NZ];
+        }
+    }
+    if (!all_finite(jac, NX * NX)) {
+        snprintf(ws->msg, sizeof ws->msg, "the Jacobian is not finite at t=%.17g", t);
+        return 1;
+    }
+    return 0;
+}
+
+int model_outputs(model_ws *ws, const double *x, double *y) {
+    if (!all_finite(x, NX)) {
+        snprintf(ws->msg, sizeof ws->msg, "the state is not finite");
+        return 1;
+    }
+    if (!model_check(ws, x, x + NQ)) return 1;
+    ws->arg[0] = x;
+    ws->arg[1] = x + NQ;
+    ws->arg[2] = x + 2 * NQ;
+    ws->arg[3] = ws->inp;
+    ws->arg[4] = ws->par;
+    ws->res[0] = y;
+    if (cedra_out(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        snprintf(ws->msg, sizeof ws->msg, "cedra_out failed");
+        return 1;
+    }
+    for (int i = 0; i < CEDRA_NY; i++) {
+        if (!isfinite(y[i])) {
+            snprintf(ws->msg, sizeof ws->msg, "the output %s is not finite (%g)", CEDRA_Y_NAMES[i], y[i]);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* residual and Jacobian of the static equilibrium at q; returns 0 or 1 */
+static int settle_eval(model_ws *ws, const double *q) {
+    ws->arg[0] = q;
+    ws->arg[1] = ws->inp;
+    ws->arg[2] = ws->par;
+    ws->res[0] = ws->sres;
+    ws->res[1] = ws->sjac;
+    if (cedra_settle(ws->arg, ws->res, ws->iw, ws->w, 0)) return 1;
+    return !(all_finite(ws->sres, NS) && all_finite(ws->sjac, NS * NS));
+}
+
+static double norm_inf(const double *v, int n) {
+    double m = 0;
+    for (int i = 0; i < n; i++) m = fmax(m, fabs(v[i]));
+    return m;
+}
+
+int model_settle(model_ws *ws, double *q) {
+    ws->arg[0] = q;
+    ws->arg[1] = ws->inp;
+    ws->arg[2] = ws->par;
+    ws->res[0] = ws->sq;
+    if (cedra_guess(ws->arg, ws->res, ws->iw, ws->w, 0) || !all_finite(ws->sq, NQ)) {
+        snprintf(ws->msg, sizeof ws->msg, "settle: cedra_guess failed or gave a non-finite pose");
+        return 1;
+    }
+    memcpy(q, ws->sq, sizeof(double) * NQ);
+    if (NS == 0) return 0;
+    if (settle_eval(ws, q)) {
+        snprintf(ws->msg, sizeof ws->msg, "settle: the equilibrium residual is not finite at the initial guess");
+        return 1;
+    }
+    double r = norm_inf(ws->sres, NS);
+    for (int it = 0; it < SETTLE_MAX_ITER; it++) {
+        if (r == 0.0) return 0;
+        if (linalg_lu_factor(NS, ws->sjac, ws->spiv)) {
+            snprintf(ws->msg, sizeof ws->msg, "settle: singular equilibrium Jacobian at iteration %d "
+                     "(residual %.3g)", it, r);
+            return 1;
+        }
+        for (int i = 0; i < NS; i++) ws->sdq[i] = -ws->sres[i];
+        linalg_lu_solve(NS, ws->sjac, ws->spiv, ws->sdq);
+        double scale = 1.0;
+        for (int i = 0; i < NS; i++) scale = fmax(scale, fabs(q[CEDRA_SETTLE_IDX[i]]));
+        double dq = norm_inf(ws->sdq, NS);
+        /* damped: halve the step until the residual decreases */
+        double lam = 1.0, r_new = HUGE_VAL;
+        memcpy(ws->sq, q, sizeof(double) * NQ);
+        int k;
+        for (k = 0; k < SETTLE_MAX_HALVINGS; k++, lam *= 0.5) {
+            for (int i = 0; i < NS; i++) ws->sq[CEDRA_SETTLE_IDX[i]] = q[CEDRA_SETTLE_IDX[i]] + lam * ws->sdq[i];
+            if (!settle_eval(ws, ws->sq) && (r_new = norm_inf(ws->sres, NS)) < r) break;
+        }
+        if (k == SETTLE_MAX_HALVINGS) {
+            if (dq <= SETTLE_RTOL * scale) return 0;      /* at the floor of the residual's round-off */
+            snprintf(ws->msg, sizeof ws->msg, "settle: no decrease of the equilibrium residual %.3g at "
+                     "iteration %d", r, it);
+            return 1;
+        }
+        memcpy(q, ws->sq, sizeof(double) * NQ);
+        r = r_new;
+        if (lam * dq <= SETTLE_RTOL * scale) return 0;
+    }
+    snprintf(ws->msg, sizeof ws->msg, "settle: no convergence in %d Newton iterations (residual %.3g)",
+             SETTLE_MAX_ITER, r);
+    return 1;
+}

@@ -1,0 +1,29 @@
+/* The model side of the FMU: x' = F(x) from the generated CasADi functions (x = [q, u, z]), its Jacobian for the
+ * implicit solver, outputs, the state check and the static-equilibrium solve. Knows nothing about FMI. */
+#ifndef CEDRA_MODEL_GLUE_H
+#define CEDRA_MODEL_GLUE_H
+
+#include <stddef.h>
+
+typedef struct model_ws model_ws;
+
+/* bytes of one workspace (the caller allocates it zeroed, e.g. with fmi2's allocateMemory) */
+size_t model_ws_size(void);
+/* the inputs and parameters the next evaluations use (pointers kept, not copied) */
+void model_bind(model_ws *ws, const double *inp, const double *par);
+/* the reason of the last failure (a finished sentence, no trailing newline) */
+const char *model_message(const model_ws *ws);
+void model_clear_message(model_ws *ws);
+
+/* solver callbacks (solver.h): ctx is the model_ws */
+int model_rhs(void *ctx, double t, const double *x, double *xdot);
+int model_jac(void *ctx, double t, const double *x, const double *xdot, double *jac);
+
+/* y = outputs at x; 0, or 1 (message) if the state cannot be evaluated or an output is not finite */
+int model_outputs(model_ws *ws, const double *x, double *y);
+/* 1 if cedra_check accepts (q, u), else 0 (message set) */
+int model_check(model_ws *ws, const double *q, const double *u);
+/* q := cedra_guess(q), then damped Newton on cedra_settle for the settle coordinates; 0, or 1 (message) */
+int model_settle(model_ws *ws, double *q);
+
+#endif
