@@ -1,0 +1,65 @@
+/* Small dense linear algebra (see linalg.h): LU with partial pivoting, column-major, a(i, j) = a[i + j*n]. */
+#include "linalg.h"
+
+#include <math.h>
+#include <stddef.h>
+
+int linalg_lu_factor(int n, double *a, int *piv) {
+    for (int k = 0; k < n; k++) {
+        double *colk = a + (size_t)k * n;
+        /* Partial pivoting: the largest magnitude in the column bounds the multipliers by 1. */
+        int p = k;
+        double amax = fabs(colk[k]);
+        for (int i = k + 1; i < n; i++) {
+            double v = fabs(colk[i]);
+            if (v > amax || isnan(v)) {        /* a NaN is picked up so that it is reported, not hidden */
+                p = i;
+                amax = v;
+            }
+        }
+        piv[k] = p;
+        if (amax == 0.0 || !isfinite(amax)) return 1;
+        if (p != k) {                          /* swap whole rows so that the L part stays consistent */
+            for (int j = 0; j < n; j++) {
+                double *c = a + (size_t)j * n, tmp = c[k];
+                c[k] = c[p];
+                c[p] = tmp;
+            }
+        }
+        double inv = 1.0 / colk[k];
+        for (int i = k + 1; i < n; i++) colk[i] *= inv;
+        /* Column-oriented rank-1 update: the inner loop runs down contiguous memory. */
+        for (int j = k + 1; j < n; j++) {
+            double *c = a + (size_t)j * n, akj = c[k];
+            if (akj == 0.0) continue;
+            for (int i = k + 1; i < n; i++) c[i] -= colk[i] * akj;
+        }
+    }
+    return 0;
+}
+
+void linalg_lu_solve(int n, const double *lu, const int *piv, double *b) {
+    /* the row interchanges of the factorization, in the order they were made */
+    for (int k = 0; k < n; k++) {
+        int p = piv[k];
+        if (p != k) {
+            double tmp = b[k];
+            b[k] = b[p];
+            b[p] = tmp;
+        }
+    }
+    /* L y = P b (unit lower triangle), column-oriented */
+    for (int j = 0; j < n; j++) {
+        const double *c = lu + (size_t)j * n;
+        double bj = b[j];
+        if (bj == 0.0) continue;
+        for (int i = j + 1; i < n; i++) b[i] -= c[i] * bj;
+    }
+    /* U x = y */
+    for (int j = n - 1; j >= 0; j--) {
+        const double *c = lu + (size_t)j * n;
+        b[j] /= c[j];
+        double bj = b[j];
+        for (int i = 0; i < j; i++) b[i] -= c[i] * bj;
+    }
+}

@@ -1,0 +1,447 @@
+/* Embedded ODE solvers (see solver.h): fixed-step RK4, adaptive Dormand-Prince 5(4), adaptive Rosenbrock RODAS4.
+ * No allocation, no globals: every vector lives in the caller's `work`; the only stack array is the pivot
+ * vector of the (small, n <= a few dozen) iteration matrix, because `work` holds doubles only. */
+#include "solver.h"
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "linalg.h"
+
+#define MAX_STEPS 500000L   /* attempted steps per call before "too many steps" */
+#define MAX_FAILS 15        /* consecutive failed evaluations (rhs/jac error, non-finite, singular W) per point */
+#define SAFETY 0.9
+#define FAC_SHRINK 0.2      /* smallest h_new/h after an error test */
+#define FAIL_SHRINK 0.25    /* h_new/h after a failed evaluation: the step left the region where F is defined */
+#define PI_BETA 0.04        /* Hairer's DOPRI5 PI controller (stabilizes h on the stability boundary) */
+
+enum { EV_OK = 0, EV_FAILED, EV_NONFINITE, EV_JAC_FAILED, EV_JAC_NONFINITE, EV_SINGULAR };
+
+static const char *ev_reason(int ev) {
+    switch (ev) {
+    case EV_FAILED: return "the right-hand side failed";
+    case EV_NONFINITE: return "non-finite derivative or state";
+    case EV_JAC_FAILED: return "the Jacobian failed";
+    case EV_JAC_NONFINITE: return "non-finite Jacobian";
+    case EV_SINGULAR: return "singular iteration matrix W";
+    default: return "error test failed";
+    }
+}
+
+static void put_msg(char *msg, size_t len, const char *fmt, ...) {
+    if (!msg || len == 0) return;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, len, fmt, ap);
+    va_end(ap);
+}
+
+static int all_finite(int n, const double *v) {
+    for (int i = 0; i < n; i++)
+        if (!isfinite(v[i])) return 0;
+    return 1;
+}
+
+/* One counted evaluation of F with the finiteness check every caller needs. */
+static int eval(solver_rhs_fn rhs, void *ctx, double t, const double *x, double *xdot, int n, solver_stats *st) {
+    st->rhs_evals++;
+    if (rhs(ctx, t, x, xdot)) return EV_FAILED;
+    return all_finite(n, xdot) ? EV_OK : EV_NONFINITE;
+}
+
+/* RMS of err_i / (tol + tol*max(|x_i|, |xnew_i|)): mixed absolute/relative test with a single tolerance. */
+static double err_norm(int n, double tol, const double *err, const double *x, const double *xnew) {
+    double s = 0;
+    for (int i = 0; i < n; i++) {
+        double sk = tol + tol * fmax(fabs(x[i]), fabs(xnew[i]));
+        double r = err[i] / sk;
+        s += r * r;
+    }
+    return n > 0 ? sqrt(s / n) : 0.0;
+}
+
+static double rms_scaled(int n, double tol, const double *v, const double *x) {
+    double s = 0;
+    for (int i = 0; i < n; i++) {
+        double r = v[i] / (tol + tol * fabs(x[i]));
+        s += r * r;
+    }
+    return n > 0 ? sqrt(s / n) : 0.0;
+}
+
+size_t solver_workspace_size(int method, int n) {
+    size_t N = n > 0 ? (size_t)n : 0;
+    switch (method) {
+    case SOLVER_RK4: return 5 * N;                   /* k1..k4, stage state */
+    case SOLVER_DOPRI5: return 9 * N;                /* k1..k7, stage state (then error), xnew */
+    case SOLVER_RODAS4: return 10 * N + 2 * N * N;   /* f0, f_t, k1..k6, stage state, stage F; J, W */
+    default: return 0;
+    }
+}
+
+/* ------------------------------------------------------------------------------------------------------------- */
+/* RK4: fixed step h_max; the last step is shortened so the interval is covered exactly. */
+
+static int rk4(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs, void *ctx,
+               double *work, solver_stats *st, char *msg, size_t msg_len) {
+    double *k1 = work, *k2 = k1 + n, *k3 = k2 + n, *k4 = k3 + n, *y = k4 + n;
+    const double h = s->h_max;
+    /* The 1e-12 keeps an interval that is a multiple of h up to rounding (0.010000000000000009 / 0.001)
+     * from getting a sliver step; a genuine remainder is never dropped, it becomes a shortened last step. */
+    double ns = ceil((t1 - t0) / h - 1e-12);
+    long nsteps = ns < 1 ? 1 : (long)ns;
+    for (long k = 0; k < nsteps; k++) {
+        /* t from t0 + k*h rather than accumulated sums, and the last step ends on t1 itself */
+        double ta = t0 + (double)k * h, tb = (k == nsteps - 1) ? t1 : t0 + (double)(k + 1) * h, hs = tb - ta;
+        int ev;
+        if ((ev = eval(rhs, ctx, ta, x, k1, n, st)) != EV_OK) goto fail;
+        for (int i = 0; i < n; i++) y[i] = x[i] + 0.5 * hs * k1[i];
+        if ((ev = eval(rhs, ctx, ta + 0.5 * hs, y, k2, n, st)) != EV_OK) goto fail;
+        for (int i = 0; i < n; i++) y[i] = x[i] + 0.5 * hs * k2[i];
+        if ((ev = eval(rhs, ctx, ta + 0.5 * hs, y, k3, n, st)) != EV_OK) goto fail;
+        for (int i = 0; i < n; i++) y[i] = x[i] + hs * k3[i];
+        if ((ev = eval(rhs, ctx, tb, y, k4, n, st)) != EV_OK) goto fail;
+        for (int i = 0; i < n; i++) y[i] = x[i] + hs / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
+        if (!all_finite(n, y)) {
+            put_msg(msg, msg_len, "rk4: non-finite state at t = %.15g (h = %.3g)", tb, hs);
+            return 1;
+        }
+        memcpy(x, y, sizeof(double) * (size_t)n);   /* x changes only after a complete, finite step */
+        st->steps++;
+        continue;
+    fail:
+        if (ev == EV_FAILED)
+            put_msg(msg, msg_len, "rk4: the right-hand side failed at t = %.15g (h = %.3g)", ta, hs);
+        else
+            put_msg(msg, msg_len, "rk4: non-finite state at t = %.15g (non-finite derivative, h = %.3g)", ta, hs);
+        return 1;
+    }
+    return 0;
+}
+
+/* ------------------------------------------------------------------------------------------------------------- */
+/* Dormand & Prince 5(4), coefficients from Hairer, Norsett & Wanner, Solving ODE I, Table II.5.2 (dopri5.f). */
+
+static const double dp_c2 = 1.0 / 5, dp_c3 = 3.0 / 10, dp_c4 = 4.0 / 5, dp_c5 = 8.0 / 9;
+static const double dp_a21 = 1.0 / 5;
+static const double dp_a31 = 3.0 / 40, dp_a32 = 9.0 / 40;
+static const double dp_a41 = 44.0 / 45, dp_a42 = -56.0 / 15, dp_a43 = 32.0 / 9;
+static const double dp_a51 = 19372.0 / 6561, dp_a52 = -25360.0 / 2187, dp_a53 = 64448.0 / 6561,
+                    dp_a54 = -212.0 / 729;
+static const double dp_a61 = 9017.0 / 3168, dp_a62 = -355.0 / 33, dp_a63 = 46732.0 / 5247, dp_a64 = 49.0 / 176,
+                    dp_a65 = -5103.0 / 18656;
+static const double dp_a71 = 35.0 / 384, dp_a73 = 500.0 / 1113, dp_a74 = 125.0 / 192, dp_a75 = -2187.0 / 6784,
+                    dp_a76 = 11.0 / 84;
+/* e = b(5th order) - b(4th order) */
+static const double dp_e1 = 71.0 / 57600, dp_e3 = -71.0 / 16695, dp_e4 = 71.0 / 1920, dp_e5 = -17253.0 / 339200,
+                    dp_e6 = 22.0 / 525, dp_e7 = -1.0 / 40;
+
+/* DOPRI5 layout: k1..k7, y (stage state, then the error estimate), xnew. k1 = F(t, x) on entry; on success
+ * k7 = F(t+h, xnew), the k1 of the next step (FSAL). */
+#define DP_K(w, n, i) ((w) + (size_t)((i) - 1) * (n))
+#define DP_ERR(w, n) ((w) + 7 * (size_t)(n))
+#define DP_XNEW(w, n) ((w) + 8 * (size_t)(n))
+
+static int dopri5_step(int n, const double *x, double t, double h, double tend, solver_rhs_fn rhs, void *ctx,
+                       double *w, solver_stats *st) {
+    double *k1 = DP_K(w, n, 1), *k2 = DP_K(w, n, 2), *k3 = DP_K(w, n, 3), *k4 = DP_K(w, n, 4), *k5 = DP_K(w, n, 5),
+           *k6 = DP_K(w, n, 6), *k7 = DP_K(w, n, 7), *y = DP_ERR(w, n), *xnew = DP_XNEW(w, n);
+    int ev;
+    for (int i = 0; i < n; i++) y[i] = x[i] + h * dp_a21 * k1[i];
+    if ((ev = eval(rhs, ctx, t + dp_c2 * h, y, k2, n, st))) return ev;
+    for (int i = 0; i < n; i++) y[i] = x[i] + h * (dp_a31 * k1[i] + dp_a32 * k2[i]);
+    if ((ev = eval(rhs, ctx, t + dp_c3 * h, y, k3, n, st))) return ev;
+    for (int i = 0; i < n; i++) y[i] = x[i] + h * (dp_a41 * k1[i] + dp_a42 * k2[i] + dp_a43 * k3[i]);
+    if ((ev = eval(rhs, ctx, t + dp_c4 * h, y, k4, n, st))) return ev;
+    for (int i = 0; i < n; i++)
+        y[i] = x[i] + h * (dp_a51 * k1[i] + dp_a52 * k2[i] + dp_a53 * k3[i] + dp_a54 * k4[i]);
+    if ((ev = eval(rhs, ctx, t + dp_c5 * h, y, k5, n, st))) return ev;
+    for (int i = 0; i < n; i++)
+        y[i] = x[i] + h * (dp_a61 * k1[i] + dp_a62 * k2[i] + dp_a63 * k3[i] + dp_a64 * k4[i] + dp_a65 * k5[i]);
+    if ((ev = eval(rhs, ctx, tend, y, k6, n, st))) return ev;
+    for (int i = 0; i < n; i++)
+        xnew[i] = x[i] + h * (dp_a71 * k1[i] + dp_a73 * k3[i] + dp_a74 * k4[i] + dp_a75 * k5[i] + dp_a76 * k6[i]);
+    if (!all_finite(n, xnew)) return EV_NONFINITE;
+    if ((ev = eval(rhs, ctx, tend, xnew, k7, n, st))) return ev;
+    for (int i = 0; i < n; i++)   /* y is free again: it takes the error estimate */
+        y[i] = h * (dp_e1 * k1[i] + dp_e3 * k3[i] + dp_e4 * k4[i] + dp_e5 * k5[i] + dp_e6 * k6[i] + dp_e7 * k7[i]);
+    return EV_OK;
+}
+
+/* ------------------------------------------------------------------------------------------------------------- */
+/* RODAS4 (Hairer & Wanner, Solving ODE II, Sec. VI.4, Table 4.? "RODAS"): coefficients copied from E. Hairer's
+ * rodas.f (version of October 28, 1996; http://www.unige.ch/~hairer/prog/stiff/rodas.f), subroutine ROCOE, METH=1,
+ * read from an f2c translation of that file in the public GitHub index. The stage formulation is the one of
+ * rodas.f's ROSCOR (with IFCN=1, IDFX=0, identity mass matrix):
+ *   (I/(h*gamma) - J) k_i = F(t + c_i h, x + sum_j a_ij k_j) + sum_j (c_ij/h) k_j + h d_i F_t
+ * The last two stages evaluate at t+h with x5 = x + sum a_5j k_j, x6 = x5 + k5, and xnew = x6 + k6, so the method
+ * is stiffly accurate (L-stable) and k6 is the difference to the embedded order-3 solution x6. */
+static const double ro_gamma = 0.25;
+static const double ro_c2 = 0.386, ro_c3 = 0.21, ro_c4 = 0.63;
+static const double ro_d1 = 0.25, ro_d2 = -0.1043, ro_d3 = 0.1035, ro_d4 = -0.3620000000000023e-01;
+static const double ro_a21 = 0.1544000000000000e+01;
+static const double ro_a31 = 0.9466785280815826e+00, ro_a32 = 0.2557011698983284e+00;
+static const double ro_a41 = 0.3314825187068521e+01, ro_a42 = 0.2896124015972201e+01,
+                    ro_a43 = 0.9986419139977817e+00;
+static const double ro_a51 = 0.1221224509226641e+01, ro_a52 = 0.6019134481288629e+01,
+                    ro_a53 = 0.1253708332932087e+02, ro_a54 = -0.6878860361058950e+00;
+static const double ro_c21 = -0.5668800000000000e+01;
+static const double ro_c31 = -0.2430093356833875e+01, ro_c32 = -0.2063599157091915e+00;
+static const double ro_c41 = -0.1073529058151375e+00, ro_c42 = -0.9594562251023355e+01,
+                    ro_c43 = -0.2047028614809616e+02;
+static const double ro_c51 = 0.7496443313967647e+01, ro_c52 = -0.1024680431464352e+02,
+                    ro_c53 = -0.3399990352819905e+02, ro_c54 = 0.1170890893206160e+02;
+static const double ro_c61 = 0.8083246795921522e+01, ro_c62 = -0.7981132988064893e+01,
+                    ro_c63 = -0.3152159432874371e+02, ro_c64 = 0.1631930543123136e+02,
+                    ro_c65 = -0.6058818238834054e+01;
+
+
+/* RODAS4 layout: f0, ft, k1..k6, y (stage state, then the embedded solution), dy (stage F, then xnew); J; W.
+ * The error estimate is k6 = xnew - x_embedded. */
+#define RO_F0(w, n) (w)
+#define RO_FT(w, n) ((w) + (size_t)(n))
+#define RO_K(w, n, i) ((w) + (size_t)((i) + 1) * (n))
+#define RO_ERR(w, n) RO_K(w, n, 6)
+#define RO_Y(w, n) ((w) + 8 * (size_t)(n))
+#define RO_XNEW(w, n) ((w) + 9 * (size_t)(n))
+#define RO_J(w, n) ((w) + 10 * (size_t)(n))
+#define RO_W(w, n) ((w) + 10 * (size_t)(n) + (size_t)(n) * (n))
+
+/* Data at the start of a RODAS4 step: F, the Jacobian and F_t at (t, x); kept when a step is rejected. */
+static int rodas4_start(int n, const double *x, double t, double tmax, solver_rhs_fn rhs, solver_jac_fn jac,
+                        void *ctx, double *w, solver_stats *st) {
+    double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *tmp = RO_XNEW(w, n), *J = RO_J(w, n);
+    int ev;
+    if ((ev = eval(rhs, ctx, t, x, f0, n, st))) return ev;
+    st->jac_evals++;
+    if (jac(ctx, t, x, f0, J)) return EV_JAC_FAILED;
+    if (!all_finite(n * n, J)) return EV_JAC_NONFINITE;
+    /* dF/dt by a forward difference, as rodas.f does for a non-autonomous F without DFX (IDFX=0), at the price
+     * of one F per step: without the d_i terms the method drops to order 1 in an explicit time dependence. For
+     * an autonomous F the difference is exactly 0. Backward if t + delta would pass t1, where inputs end. */
+    double delt = sqrt(2.220446049250313e-16 * fmax(1e-5, fabs(t)));
+    if (t + delt > tmax) delt = -delt;
+    if ((ev = eval(rhs, ctx, t + delt, x, tmp, n, st))) return ev;
+    for (int i = 0; i < n; i++) ft[i] = (tmp[i] - f0[i]) / delt;
+    return EV_OK;
+}
+
+static int rodas4_step(int n, const double *x, double t, double h, double tend, solver_rhs_fn rhs, void *ctx,
+                       double *w, solver_stats *st) {
+    double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *k1 = RO_K(w, n, 1), *k2 = RO_K(w, n, 2), *k3 = RO_K(w, n, 3),
+           *k4 = RO_K(w, n, 4), *k5 = RO_K(w, n, 5), *k6 = RO_K(w, n, 6), *y = RO_Y(w, n), *dy = RO_XNEW(w, n),
+           *J = RO_J(w, n), *W = RO_W(w, n);
+    int piv[n];   /* VLA: work holds doubles only, and n is a few dozen at most */
+    int ev;
+    /* W = I/(h*gamma) - J, factored once and used for all six stages */
+    const double fac = 1.0 / (h * ro_gamma);
+    for (size_t k = 0; k < (size_t)n * n; k++) W[k] = -J[k];
+    for (int i = 0; i < n; i++) W[i + (size_t)i * n] += fac;
+    if (linalg_lu_factor(n, W, piv)) return EV_SINGULAR;
+
+    for (int i = 0; i < n; i++) k1[i] = f0[i] + h * ro_d1 * ft[i];
+    linalg_lu_solve(n, W, piv, k1);
+
+    for (int i = 0; i < n; i++) y[i] = x[i] + ro_a21 * k1[i];
+    if ((ev = eval(rhs, ctx, t + ro_c2 * h, y, dy, n, st))) return ev;
+    for (int i = 0; i < n; i++) k2[i] = dy[i] + h * ro_d2 * ft[i] + ro_c21 * k1[i] / h;
+    linalg_lu_solve(n, W, piv, k2);
+
+    for (int i = 0; i < n; i++) y[i] = x[i] + ro_a31 * k1[i] + ro_a32 * k2[i];
+    if ((ev = eval(rhs, ctx, t + ro_c3 * h, y, dy, n, st))) return ev;
+    for (int i = 0; i < n; i++) k3[i] = dy[i] + h * ro_d3 * ft[i] + (ro_c31 * k1[i] + ro_c32 * k2[i]) / h;
+    linalg_lu_solve(n, W, piv, k3);
+
+    for (int i = 0; i < n; i++) y[i] = x[i] + ro_a41 * k1[i] + ro_a42 * k2[i] + ro_a43 * k3[i];
+    if ((ev = eval(rhs, ctx, t + ro_c4 * h, y, dy, n, st))) return ev;
+    for (int i = 0; i < n; i++)
+        k4[i] = dy[i] + h * ro_d4 * ft[i] + (ro_c41 * k1[i] + ro_c42 * k2[i] + ro_c43 * k3[i]) / h;
+    linalg_lu_solve(n, W, piv, k4);
+
+    /* stages 5 and 6 sit at t+h with d5 = d6 = 0 (rodas.f passes HD = 0) */
+    for (int i = 0; i < n; i++) y[i] = x[i] + ro_a51 * k1[i] + ro_a52 * k2[i] + ro_a53 * k3[i] + ro_a54 * k4[i];
+    if ((ev = eval(rhs, ctx, tend, y, dy, n, st))) return ev;
+    for (int i = 0; i < n; i++)
+        k5[i] = dy[i] + (ro_c51 * k1[i] + ro_c52 * k2[i] + ro_c53 * k3[i] + ro_c54 * k4[i]) / h;
+    linalg_lu_solve(n, W, piv, k5);
+
+    for (int i = 0; i < n; i++) y[i] += k5[i];   /* the embedded order-3 solution */
+    if (!all_finite(n, y)) return EV_NONFINITE;
+    if ((ev = eval(rhs, ctx, tend, y, dy, n, st))) return ev;
+    for (int i = 0; i < n; i++)
+        k6[i] = dy[i] + (ro_c61 * k1[i] + ro_c62 * k2[i] + ro_c63 * k3[i] + ro_c64 * k4[i] + ro_c65 * k5[i]) / h;
+    linalg_lu_solve(n, W, piv, k6);
+
+    for (int i = 0; i < n; i++) dy[i] = y[i] + k6[i];   /* dy becomes xnew */
+    return all_finite(n, dy) ? EV_OK : EV_NONFINITE;
+}
+
+/* ------------------------------------------------------------------------------------------------------------- */
+/* Shared adaptive driver for DOPRI5 and RODAS4. */
+
+/* Hairer's HINIT (dopri5.f): an explicit Euler probe estimates the second derivative; h is chosen so that
+ * h^order * max(|x''|, |x'|) ~ 0.01 in the tolerance-scaled norm. f0 = F(t, x). */
+static double initial_step(int n, const double *x, double t, const double *f0, double tol, double hmax, double span,
+                           int order, solver_rhs_fn rhs, void *ctx, double *y1, double *f1, solver_stats *st) {
+    double dnf = rms_scaled(n, tol, f0, x), dny = rms_scaled(n, tol, x, x);
+    double h = (dnf <= 1e-10 || dny <= 1e-10) ? 1e-6 : 0.01 * dny / dnf;
+    h = fmin(h, fmin(hmax, span));   /* the probe stays inside [t0, t1]: F may not be defined beyond */
+    for (int i = 0; i < n; i++) y1[i] = x[i] + h * f0[i];
+    if (eval(rhs, ctx, t + h, y1, f1, n, st) != EV_OK) return h;   /* the step control takes over from here */
+    for (int i = 0; i < n; i++) f1[i] -= f0[i];
+    double der2 = rms_scaled(n, tol, f1, x) / h;
+    double der12 = fmax(der2, dnf);
+    double h1 = der12 <= 1e-15 ? fmax(1e-6, h * 1e-3) : pow(0.01 / der12, 1.0 / order);
+    return fmin(fmin(100 * h, h1), hmax);
+}
+
+static int adaptive(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
+                    solver_jac_fn jac, void *ctx, double *w, solver_stats *st, char *msg, size_t msg_len) {
+    const int dopri = s->method == SOLVER_DOPRI5;
+    const char *name = dopri ? "dopri5" : "rodas4";
+    /* The error estimate is O(h^(q+1)), q the lower of the two orders: 4 for DOPRI5, 3 for RODAS4. */
+    const double expo = dopri ? 1.0 / 5 : 1.0 / 4;
+    const double grow_max = dopri ? 10.0 : 5.0;
+    const double tol = s->tol, hmax = s->h_max;
+    double *f0 = w;   /* F(t, x) is the first block in both layouts */
+    double *xnew = dopri ? DP_XNEW(w, n) : RO_XNEW(w, n), *errv = dopri ? DP_ERR(w, n) : RO_ERR(w, n);
+
+    double t = t0, h, facold = 1e-4;
+    int have_start = 0, fails = 0, rejected_last = 0, last_ev = -1;
+    long attempts = 0;
+
+    if (st->h_next > 0 && isfinite(st->h_next)) {
+        h = fmin(st->h_next, hmax);
+    } else {
+        int ev = dopri ? eval(rhs, ctx, t, x, f0, n, st) : rodas4_start(n, x, t, t1, rhs, jac, ctx, w, st);
+        have_start = ev == EV_OK;
+        /* scratch for the probe: k4, k5 (DOPRI5) or k2, k3 (RODAS4) - never f0, f_t, J */
+        h = have_start ? initial_step(n, x, t, f0, tol, hmax, t1 - t, dopri ? 5 : 4, rhs, ctx, w + 3 * (size_t)n,
+                                      w + 4 * (size_t)n, st)
+                       : fmin(hmax, 1e-6 * fmax(1.0, t1 - t0));
+    }
+
+    for (;;) {
+        const double rem = t1 - t, hprop = fmin(h, hmax), hmin = 1e-12 * fmax(1.0, fabs(t));
+        double hs;
+        int last = 0, ev;
+        /* Land on t1 exactly; the 1e-9 only absorbs rounding in t so that a multiple of h_max takes no
+         * extra sliver step. A remainder between one and two steps is split evenly for the same reason. */
+        if (rem <= hprop * (1 + 1e-9)) {
+            hs = rem;
+            last = 1;
+        } else if (rem < 2 * hprop) {
+            hs = 0.5 * rem;
+        } else {
+            hs = hprop;
+        }
+        if (!last && hs < hmin) goto underflow;
+        if (++attempts > MAX_STEPS) {
+            put_msg(msg, msg_len, "%s: too many steps (more than %ld in one call) at t = %.15g (h = %.3g)", name,
+                    MAX_STEPS, t, hs);
+            return 1;
+        }
+        const double tend = last ? t1 : t + hs;
+
+        ev = EV_OK;
+        if (!have_start) {
+            ev = dopri ? eval(rhs, ctx, t, x, f0, n, st) : rodas4_start(n, x, t, t1, rhs, jac, ctx, w, st);
+            have_start = ev == EV_OK;
+        }
+        if (ev == EV_OK)
+            ev = dopri ? dopri5_step(n, x, t, hs, tend, rhs, ctx, w, st) : rodas4_step(n, x, t, hs, tend, rhs, ctx, w, st);
+        double err = ev == EV_OK ? err_norm(n, tol, errv, x, xnew) : 0.0;
+        if (ev == EV_OK && isnan(err)) ev = EV_NONFINITE;
+
+        if (ev != EV_OK) {
+            /* F (or J) could not be evaluated along this step: retry a much shorter one, a bounded number of
+             * times; the step that failed says nothing about the local error, so no controller update */
+            st->rejected++;
+            rejected_last = 1;
+            last_ev = ev;
+            if (++fails > MAX_FAILS) {
+                put_msg(msg, msg_len, "%s: %s %d times in a row at t = %.15g (h = %.3g)", name, ev_reason(ev),
+                        fails, t, hs);
+                return 1;
+            }
+            h = hs * FAIL_SHRINK;
+            if (h < hmin) goto underflow;
+            continue;
+        }
+        fails = 0;
+        if (!(err <= 1.0)) {
+            st->rejected++;
+            rejected_last = 1;
+            last_ev = 0;
+            h = hs * fmax(FAC_SHRINK, SAFETY * pow(err, -expo));
+            if (h < hmin) goto underflow;
+            continue;
+        }
+
+        /* accepted: propose the next step */
+        double q;   /* h / h_new */
+        if (dopri) {
+            q = pow(err, expo - 0.75 * PI_BETA) / pow(facold, PI_BETA) / SAFETY;
+            facold = fmax(err, 1e-4);
+        } else {
+            q = pow(err, expo) / SAFETY;
+        }
+        q = fmax(1.0 / grow_max, fmin(1.0 / FAC_SHRINK, q));
+        if (rejected_last && q < 1) q = 1;   /* no growth right after a rejection */
+        double hnew = hs / q;
+        /* a step shortened only to reach t1 (or to split the remainder) does not lower the proposal */
+        if (hs < hprop && q <= 1) hnew = fmax(hnew, hprop);
+        h = fmin(hnew, hmax);
+
+        memcpy(x, xnew, sizeof(double) * (size_t)n);
+        t = tend;
+        st->steps++;
+        st->h_next = h;
+        rejected_last = 0;
+        last_ev = -1;
+        if (dopri)
+            memcpy(f0, DP_K(w, n, 7), sizeof(double) * (size_t)n);   /* FSAL */
+        else
+            have_start = 0;
+        if (last) return 0;
+    }
+
+underflow:
+    put_msg(msg, msg_len, "%s: step size underflow (h = %.3g) at t = %.15g%s%s", name, h, t,
+            last_ev >= 0 ? "; last rejection: " : "", last_ev >= 0 ? ev_reason(last_ev) : "");
+    return 1;
+}
+
+/* ------------------------------------------------------------------------------------------------------------- */
+
+int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
+                     solver_jac_fn jac, void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len) {
+    static const char *const names[SOLVER_N_METHODS] = {"rk4", "dopri5", "rodas4"};
+    if (msg && msg_len) msg[0] = '\0';
+    if (s->method < 0 || s->method >= SOLVER_N_METHODS) {
+        put_msg(msg, msg_len, "solver: unknown method %d", s->method);
+        return 1;
+    }
+    const char *name = names[s->method];
+    if (!(t1 >= t0) || !isfinite(t0) || !isfinite(t1)) {
+        put_msg(msg, msg_len, "%s: invalid interval [%.15g, %.15g]", name, t0, t1);
+        return 1;
+    }
+    if (!(s->h_max > 0) || !isfinite(s->h_max)) {
+        put_msg(msg, msg_len, "%s: h_max must be positive and finite (h_max = %g)", name, s->h_max);
+        return 1;
+    }
+    if (s->method != SOLVER_RK4 && !(s->tol > 0)) {
+        put_msg(msg, msg_len, "%s: tol must be positive (tol = %g)", name, s->tol);
+        return 1;
+    }
+    if (s->method == SOLVER_RODAS4 && !jac) {
+        put_msg(msg, msg_len, "rodas4: no Jacobian function");
+        return 1;
+    }
+    if (n <= 0 || t1 == t0) return 0;   /* nothing to integrate */
+    if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, ctx, work, stats, msg, msg_len);
+    return adaptive(s, n, x, t0, t1, rhs, jac, ctx, work, stats, msg, msg_len);
+}
