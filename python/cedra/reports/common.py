@@ -268,11 +268,12 @@ class FastFMU:
 
 
 def run_fmu(fmu_path, prob: Problem, sched: Schedule, q0, t_end, comm, method="rodas4", tol=1e-6, h_max=0.01,
-            record=None, record_every=None, u0=None, check_all=True) -> Run:
+            record=None, record_every=None, u0=None, check_all=True, wall_budget=None) -> Run:
     """Run the FMU from q0 (start.settle = false) with the schedule's inputs, communication step `comm`.
 
     record: output names read at the grid points that are multiples of record_every (default: every point).
-    check_all: read every Real output at every communication point and flag any non-finite value."""
+    check_all: read every Real output at every communication point and flag any non-finite value.
+    wall_budget: stop (ok False, extra['timeout'] True) when the run has taken longer than this many seconds."""
     from ..driver import RoverFMU
     fmu = RoverFMU(fmu_path)
     names = list(record or [])
@@ -291,7 +292,9 @@ def run_fmu(fmu_path, prob: Problem, sched: Schedule, q0, t_end, comm, method="r
         fmu.start(fmu_start_values(prob, q0, u0, method, tol, h_max, sched.at(0.0)))
     except Exception as e:           # noqa: BLE001 - the FMU refused to initialize: reported, not raised
         fmu.status = "error"
+        fmu.messages.append(f"initialization failed: {e}")
         ok = False
+    timeout = False
     current = sched.at(0.0)
     k = 0
     while ok:
@@ -313,6 +316,9 @@ def run_fmu(fmu_path, prob: Problem, sched: Schedule, q0, t_end, comm, method="r
             ok = False
             break
         k += 1
+        if wall_budget is not None and time.perf_counter() - wall > wall_budget:
+            ok, timeout = False, True
+            break
     wall = time.perf_counter() - wall
     stats = {}
     if fmu.status in ("ok", "warning", "discard"):
@@ -324,7 +330,7 @@ def run_fmu(fmu_path, prob: Problem, sched: Schedule, q0, t_end, comm, method="r
             np.empty((0, 0)), wall, int(stats.get("solver.steps", -1)), int(stats.get("solver.rhs_evals", -1)),
             ok, fmu.status, " | ".join(m for m in fmu.messages[-3:]), np.array(Y), names,
             dict(rejected=int(stats.get("solver.rejected", -1)), nan=nan_seen, nan_at=nan_at, comm=comm,
-                 reached=k * comm, messages=list(fmu.messages)))
+                 reached=k * comm, messages=list(fmu.messages), timeout=timeout))
     fmu.close()
     return r
 

@@ -1,0 +1,138 @@
+"""Benchmark (issue 5): `python -m cedra bench [--build build] [--stop-time 10]`.
+
+For bump2d and flat3d over stop_time simulated: the FMU's wall time, real-time factor, steps and rhs
+evaluations (scene default solver, communication step 0.01 s, from the Python-settled start state with the
+report's input schedule), and the cost of one evaluation of the generated C functions cedra_M, cedra_f and
+cedra_rjac (compiled here by CasADi's code generator + gcc into a shared library, loaded with casadi.external and
+evaluated many times in one mapped call, so the per-call figure is the C code's, not Python's). A peer on the
+same equations in the same run (scipy Radau with the exact Jacobian, rtol = atol = the FMU's tol) gives ratios.
+Figures are printed, never asserted on.
+"""
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+SCENES = ("bump2d", "flat3d")
+CFLAGS = ["-O2", "-fPIC", "-shared"]
+
+
+def compile_functions(fns: dict, names, workdir: Path) -> dict:
+    """The named CasADi functions as C (CasADi's code generator), compiled with gcc into one shared library,
+    loaded back with casadi.external."""
+    cg = ca.CodeGenerator("bench_fns.c", {"with_header": False})
+    for n in names:
+        cg.add(fns[n])
+    src = Path(cg.generate(str(workdir) + "/"))
+    lib = workdir / "bench_fns.so"
+    subprocess.run(["gcc", *CFLAGS, str(src), "-o", str(lib), "-lm"], check=True, capture_output=True)
+    return {n: ca.external(n, str(lib)) for n in names}
+
+
+def time_per_call(fn: ca.Function, args, min_time=0.3) -> float:
+    """Seconds per evaluation: fn mapped serially over N copies of the same arguments, one call, N grown until
+    the call takes min_time; the best of three."""
+    n = 64
+    while True:
+        fm = fn.map(n, "serial")
+        rep = [ca.repmat(ca.DM(a), 1, n) for a in args]
+        t = time.perf_counter()
+        fm(*rep)
+        dt = time.perf_counter() - t
+        if dt > min_time or n > 2 ** 22:
+            break
+        n *= 4
+    best = dt
+    for _ in range(2):
+        t = time.perf_counter()
+        fm(*rep)
+        best = min(best, time.perf_counter() - t)
+    return best / n
+
+
+def time_python_call(fn: ca.Function, args, n=2000) -> float:
+    """Seconds per call of a CasADi Function from Python (what the scipy peers pay per evaluation)."""
+    t = time.perf_counter()
+    for _ in range(n):
+        fn(*args)
+    return (time.perf_counter() - t) / n
+
+
+def bench_scene(name, build, stop_time):
+    from .reports.common import Problem, fmu_path, grid, run_fmu, run_scipy
+    from .reports.precision import flat3d_schedule, pi_schedule
+    from .scene import load_shipped
+    scene = load_shipped(name)
+    prob = Problem(scene)
+    sched = (pi_schedule if name == "bump2d" else flat3d_schedule)(prob, stop_time)
+    q0 = prob.settle()
+    x0 = prob.x0(q0)
+    method, tol, h_max = scene.solver["method"], scene.solver["tol"], scene.solver["h_max"]
+    out = dict(scene=name, method=method, tol=tol)
+
+    # one evaluation of the generated C, at a state in contact with the ground, moving
+    u = np.zeros(prob.nq)
+    u[prob.q_names.index("x")] = 0.2
+    inp = prob.inp(sched.at(0.0))
+    with tempfile.TemporaryDirectory() as d:
+        ext = compile_functions(prob.fns, ["cedra_M", "cedra_f", "cedra_rjac"], Path(d))
+        a = np.array(prob.fns["cedra_M"](q0, prob.par)).dot(np.zeros(prob.nq))
+        out["t_M"] = time_per_call(ext["cedra_M"], [q0, prob.par])
+        out["t_f"] = time_per_call(ext["cedra_f"], [q0, u, inp, prob.par])
+        out["t_jac"] = time_per_call(ext["cedra_rjac"], [q0, u, a, inp, prob.par])
+    out["t_f_python"] = time_python_call(prob.fns["cedra_f"], [q0, u, inp, prob.par])
+    out["t_rhs_python"] = time_python_call(prob.rhs, [x0, np.concatenate([inp, prob.par])])
+
+    path = fmu_path(build, name)
+    if path.exists():
+        r = run_fmu(path, prob, sched, q0, stop_time, 0.01, method, tol, h_max, check_all=False)
+        out |= dict(fmu_ok=r.ok, fmu_wall=r.wall, fmu_steps=r.steps, fmu_rejected=r.extra.get("rejected", -1),
+                    fmu_evals=r.rhs_evals, fmu_status=r.status, fmu_message=r.message,
+                    fmu_reached=r.extra.get("reached"))
+    else:
+        out["fmu_ok"] = None
+    tg = grid(stop_time, 0.01)
+    p = run_scipy(prob, sched, x0, tg, "Radau", tol)
+    out |= dict(peer="scipy Radau", peer_ok=p.ok, peer_wall=p.wall, peer_evals=p.rhs_evals)
+    return out
+
+
+def main(args):
+    build = Path(getattr(args, "build", "build"))
+    stop_time = float(getattr(args, "stop_time", 10.0))
+    if not shutil.which("gcc"):
+        print("error: gcc not found (needed to time the generated C)", file=sys.stderr)
+        return 2
+    print(f"cedra bench: {stop_time:g} s simulated per scene, communication step 0.01 s, inputs: the precision "
+          f"report's schedules; per-call times of the generated C compiled with gcc {' '.join(CFLAGS[:1])}")
+    rc = 0
+    for name in SCENES:
+        o = bench_scene(name, build, stop_time)
+        print(f"\n{name} (FMU solver {o['method']}, tol {o['tol']:g})")
+        print(f"  one evaluation (generated C): cedra_M {o['t_M'] * 1e6:.2f} us, cedra_f {o['t_f'] * 1e6:.2f} us, "
+              f"Jacobian cedra_rjac {o['t_jac'] * 1e6:.2f} us")
+        print(f"  the same from Python (CasADi VM): cedra_f {o['t_f_python'] * 1e6:.1f} us, whole rhs with the "
+              f"linear solve {o['t_rhs_python'] * 1e6:.1f} us  (x{o['t_f_python'] / o['t_f']:.0f} the C call)")
+        if o["fmu_ok"] is None:
+            print(f"  FMU: {build / (name + '.fmu')} not found (python -m cedra build {name})")
+            rc = 1
+        else:
+            rtf = o["fmu_reached"] / o["fmu_wall"]
+            state = "finished" if o["fmu_ok"] else f"STOPPED at {o['fmu_reached']:g} s: {o['fmu_status']} " \
+                                                   f"{o['fmu_message']}"
+            print(f"  FMU: wall {o['fmu_wall']:.3f} s, real-time factor {rtf:.1f}, steps {o['fmu_steps']}, "
+                  f"rejected {o['fmu_rejected']}, rhs evals {o['fmu_evals']} ({state})")
+            if not o["fmu_ok"]:
+                rc = 1
+        print(f"  peer {o['peer']} (rtol = atol = {o['tol']:g}, exact Jacobian): wall {o['peer_wall']:.2f} s, "
+              f"rhs evals {o['peer_evals']}" + ("" if o["peer_ok"] else " (failed)"))
+        if o["fmu_ok"]:
+            print(f"  ratio peer / FMU wall time: x{o['peer_wall'] / o['fmu_wall']:.1f}")
+    return rc

@@ -1,0 +1,249 @@
+"""Stability campaign (issue 5): stiff and extreme cases through the FMU, every embedded solver.
+
+    python -m cedra report stability [--quick] [--build build] [--out out/report]
+
+writes <out>/stability.md (one row per case and solver) and <out>/stability.csv, and prints a summary.
+Every case starts from a state computed in Python (the settled pose with the case's parameters, plus the case's
+offsets) given to the FMU as start.<q> / start.speed.<q> with start.settle = false.
+"""
+from __future__ import annotations
+
+import csv
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..scene import load_shipped
+from .common import Problem, Schedule, fmt, fmu_path, md_table, run_fmu, torques
+
+ENERGY_REL_TOL = 1e-5      # allowed energy increase, relative to |E(0)|, in zero-torque dissipative cases
+WALL_BUDGET = 120.0        # s of wall time per run; a run still going is stopped and reported as such
+
+SOLVERS = {                 # name -> (method, tol, h_max): the scene defaults; rk4 at a step it can survive
+    "rodas4": ("rodas4", 1e-6, 0.01),
+    "dopri5": ("dopri5", 1e-6, 0.01),
+    "rk4": ("rk4", 1e-6, 1e-4),
+}
+
+
+@dataclass
+class Case:
+    name: str
+    scene: str = "bump2d"
+    overrides: dict = field(default_factory=dict)       # parameters and inputs by name
+    schedule: Schedule = field(default_factory=lambda: Schedule([0.0], [torques(0.0)]))
+    t_end: float = 3.0
+    comm: float = 0.01
+    dz: float = 0.0                 # raise the settled pose by dz (a drop)
+    speed: float = 0.0              # initial forward speed, wheels rolling without slip
+    energy: bool = False            # zero torque, dissipative contact: the energy must not increase
+    meaningful: bool = True         # the implicit solver must finish it
+    note: str = ""
+
+
+def _steps(t_end, dt, fn):
+    n = int(round(t_end / dt))
+    return Schedule([round(k * dt, 10) for k in range(n)], [fn(k * dt) for k in range(n)])
+
+
+def cases(quick=False) -> list[Case]:
+    R = 0.065
+    coast = dict(terrain_x0=0.6)
+    cs: list[Case] = []
+    for k in (1e4, 1e5, 1e6, 1e7, 1e8):
+        cs.append(Case(f"ground_k {k:g}, coast 1 m/s onto the bump", overrides=coast | {"ground_k": k}, speed=1.0,
+                       energy=True))
+    for v in (1e-2, 1e-3, 1e-4, 1e-5):
+        cs.append(Case(f"v_eps {v:g}, coast 1 m/s onto the bump", overrides=coast | {"v_eps": v}, speed=1.0,
+                       energy=True))
+    for mu in (0.05, 0.3, 0.8, 1.5):
+        cs.append(Case(f"mu {mu:g}, 2 N.m torque step at 0.5 s", overrides={"mu": mu},
+                       schedule=Schedule([0.0, 0.5], [torques(0.0), torques(2.0)])))
+    for hr in (0.0, 1.0, 2.0, 3.0):
+        cs.append(Case(f"steep narrow bump h = {hr:g} R_w (w = 0.5 R_w), 1.5 N.m", t_end=6.0,
+                       overrides={"terrain_h": hr * R, "terrain_w": 0.5 * R, "terrain_x0": 0.6},
+                       schedule=Schedule([0.0], [torques(1.5)])))
+    cs.append(Case("drop from 0.3 m, zero torque", dz=0.3, t_end=2.0, energy=True))
+    cs.append(Case("drop from 0.3 m onto ground_k 1e7, zero torque", dz=0.3, t_end=2.0, energy=True,
+                   overrides={"ground_k": 1e7}))
+    cs.append(Case("torque step 0 -> 50 N.m at 0.5 s", t_end=2.0,
+                   schedule=Schedule([0.0, 0.5], [torques(0.0), torques(50.0)])))
+    cs.append(Case("torque spikes +-50 N.m for 0.1 s every 0.5 s", t_end=3.0,
+                   schedule=_steps(3.0, 0.1, lambda t: torques(
+                       (50.0 if int(round(t / 0.5)) % 2 == 0 else -50.0) if abs(t / 0.5 - round(t / 0.5)) < 1e-9
+                       else 0.3))))
+    for comm in (1e-4, 1e-3, 1e-2, 1e-1, 1.0):
+        cs.append(Case(f"comm step {comm:g} s, 0.5 N.m", comm=comm, t_end=3.0,
+                       schedule=Schedule([0.0], [torques(0.5)])))
+    cs.append(Case("long run 60 s, bump2d, 0.4 N.m", t_end=60.0, schedule=Schedule([0.0], [torques(0.4)])))
+    cs.append(Case("long run 60 s, flat3d, steering 0.3 rad, 0.3 N.m", scene="flat3d", t_end=60.0,
+                   schedule=Schedule([0.0], [torques(0.3, **{"steer[1]": 0.3, "steer[2]": 0.3})])))
+    cs.append(Case("long run 60 s, flat3d, coast 1 m/s, zero torque", scene="flat3d", t_end=60.0, speed=1.0,
+                   energy=True))
+    if quick:
+        keep = ("ground_k 1e+08", "v_eps 1e-05", "drop from 0.3 m, zero torque")
+        cs = [c for c in cs if c.name.startswith(keep)]
+        for c in cs:
+            c.t_end = min(c.t_end, 1.0)
+    return cs
+
+
+@dataclass
+class Result:
+    case: Case
+    solver: str
+    finished: bool
+    status: str
+    reason: str
+    steps: int
+    rejected: int
+    wall: float
+    reached: float
+    e_increase: float | None
+    e_tol: float | None
+    nan: bool
+    nan_at: float | None
+
+    @property
+    def energy_ok(self):
+        return self.e_increase is None or self.e_increase <= self.e_tol
+
+    @property
+    def acceptable(self):
+        """The issue's rule: never NaN; the energy never grows; the implicit solver finishes every meaningful
+        case; an explicit solver may stop, but only with status discard and a message."""
+        if self.nan or not self.energy_ok:
+            return False
+        if self.finished:
+            return True
+        if self.solver == "rodas4" and self.case.meaningful:
+            return False
+        return self.status == "discard" and bool(self.reason)
+
+
+_PROBLEMS: dict = {}
+
+
+def start_state(case: Case):
+    key = (case.scene, tuple(sorted(case.overrides.items())))
+    if key not in _PROBLEMS:
+        _PROBLEMS[key] = Problem(load_shipped(case.scene), case.overrides)
+    prob = _PROBLEMS[key]
+    q0 = prob.settle()
+    q0[prob.q_names.index("z")] += case.dz
+    u0 = np.zeros(prob.nq)
+    if case.speed:
+        R = prob.par[prob.pnames.index("R_w")]
+        u0[prob.q_names.index("x")] = case.speed
+        for k, n in enumerate(prob.q_names):
+            if n.startswith("gamma"):
+                u0[k] = case.speed / R
+    return prob, q0, u0
+
+
+def run_case(case: Case, solver: str, build="build", budget=WALL_BUDGET) -> Result:
+    prob, q0, u0 = start_state(case)
+    method, tol, h_max = SOLVERS[solver]
+    rec = ["energy.kinetic", "energy.potential"]
+    r = run_fmu(fmu_path(build, case.scene), prob, case.schedule, q0, case.t_end, case.comm, method, tol, h_max,
+                record=rec, u0=u0, check_all=True, wall_budget=budget)
+    e_inc = e_tol = None
+    if case.energy and len(r.Y):
+        E = r.Y[:, 0] + r.Y[:, 1]
+        E = E[np.isfinite(E)]
+        if len(E):
+            e_inc = float(np.max(E - np.minimum.accumulate(E)))
+            e_tol = ENERGY_REL_TOL * abs(float(E[0]))
+    reason = r.message if not r.ok else ""
+    if r.extra.get("timeout"):
+        reason = f"stopped by the report after {budget:g} s wall (still running at t = {r.extra['reached']:g} s)"
+    return Result(case, solver, r.ok, r.status, reason, r.steps, r.extra.get("rejected", -1), r.wall,
+                  r.extra.get("reached", 0.0), e_inc, e_tol, bool(r.extra.get("nan")), r.extra.get("nan_at"))
+
+
+HEADER = ["case", "solver", "comm [s]", "t_end [s]", "finished", "reached [s]", "FMU status", "reason (FMU log)",
+          "steps", "rejected", "wall [s]", "max energy increase [J]", "energy tol [J]", "NaN ever", "verdict"]
+
+
+def write(results, out_dir: Path, command, wall_total):
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for r in results:
+        c = r.case
+        rows.append([c.name + (f" ({c.scene})" if c.scene != "bump2d" else ""), r.solver, fmt(c.comm), fmt(c.t_end),
+                     fmt(r.finished), fmt(r.reached), r.status, r.reason[:160] or "-", fmt(r.steps),
+                     fmt(r.rejected), fmt(r.wall), fmt(r.e_increase) if r.e_increase is not None else "-",
+                     fmt(r.e_tol) if r.e_tol is not None else "-", fmt(r.nan) + (f" at {r.nan_at:g} s" if r.nan else ""),
+                     "ok" if r.acceptable else "**FAIL**"])
+    bad = [r for r in results if not r.acceptable]
+    md = ["# Stability report", "",
+          f"Produced by `{command}` in {wall_total:.0f} s on this machine; every figure is measured in that run.", "",
+          "Each case runs through the FMU (FMPy) from a start state computed in Python: the static equilibrium "
+          "with the case's parameters (`cedra_guess`, then Newton on `cedra_settle`), raised by the drop height, "
+          "with the initial forward speed and matching wheel spin for coasting cases; the FMU gets it as "
+          "`start.<q>`, `start.speed.<q>`, `start.settle = false`. Parameters and inputs not named are the "
+          "scene's (bump2d: Gaussian bump, ground_k 1e5 N/m, ground_d 600 N.s/m, v_eps 0.01 m/s, mu 0.8).", "",
+          "Solvers: " + ", ".join(f"`{k}` (tol {v[1]:g}, h_max {v[2]:g} s)" if k != "rk4" else
+                                  f"`rk4` (fixed step {v[2]:g} s)" for k, v in SOLVERS.items()) + ".", "",
+          "Columns: **finished** = reached t_end; **reached** = last communication point reached; **FMU status** "
+          "= the status of the failing fmi2DoStep (`ok` if none failed); **reason** = the last lines the FMU "
+          "logged; **steps**, **rejected** = `solver.steps`, `solver.rejected` at the end; **wall** = wall time of "
+          "the run; **max energy increase** (zero-torque cases with dissipative contact only) = max over t of "
+          "E(t) - min over s <= t of E(s), E = energy.kinetic + energy.potential read at every communication "
+          f"point; **energy tol** = {ENERGY_REL_TOL:g} |E(0)|; **NaN ever** = any Real output non-finite at any "
+          "communication point. **verdict**: ok when no NaN, no energy growth beyond the tolerance, and either "
+          "finished or (explicit solvers only, or a case marked not physically meaningful) stopped with status "
+          f"`discard` and a logged reason. A run still going after {WALL_BUDGET:g} s of wall time is stopped by "
+          "the report (said in the reason column).", "",
+          md_table(HEADER, rows), "",
+          "## Summary", "",
+          f"- {len(results)} runs, {sum(r.finished for r in results)} finished, {len(bad)} failed the rule "
+          f"(never NaN; rodas4 finishes every meaningful case; explicit solvers stop only with discard + message; "
+          "no energy growth)."]
+    for s in SOLVERS:
+        rs = [r for r in results if r.solver == s]
+        if rs:
+            md.append(f"- {s}: finished {sum(r.finished for r in rs)}/{len(rs)}, "
+                      f"discarded {sum(r.status == 'discard' for r in rs)}, NaN {sum(r.nan for r in rs)}")
+    for r in bad:
+        md.append(f"- FAIL: {r.case.name} / {r.solver}: status {r.status}, reason '{r.reason}', NaN {r.nan}, "
+                  f"energy increase {r.e_increase}")
+    (out_dir / "stability.md").write_text("\n".join(md) + "\n")
+    with open(out_dir / "stability.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["case", "scene", "solver", "comm", "t_end", "finished", "reached", "status", "reason", "steps",
+                    "rejected", "wall", "energy_increase", "energy_tol", "nan", "acceptable"])
+        for r in results:
+            w.writerow([r.case.name, r.case.scene, r.solver, r.case.comm, r.case.t_end, r.finished, r.reached,
+                        r.status, r.reason, r.steps, r.rejected, r.wall, r.e_increase, r.e_tol, r.nan, r.acceptable])
+    return md[-(len(SOLVERS) + 1 + len(bad)):]
+
+
+def main(args):
+    quick = getattr(args, "quick", False)
+    out = Path(getattr(args, "out", "out/report"))
+    build = getattr(args, "build", "build")
+    t0 = time.perf_counter()
+    results = []
+    missing = set()
+    for case in cases(quick):
+        if not fmu_path(build, case.scene).exists():
+            missing.add(case.scene)
+            continue
+        for solver in SOLVERS:
+            r = run_case(case, solver, build)
+            results.append(r)
+            print(f"{case.name[:60]:60s} {solver:7s} {'finished' if r.finished else r.status:9s} "
+                  f"{r.wall:7.2f} s steps {r.steps}" + ("" if r.acceptable else "  FAIL") +
+                  (f"  [{r.reason[:100]}]" if r.reason else ""), flush=True)
+    if missing:
+        print(f"no FMU for {sorted(missing)} in {build}: build first (python -m cedra build)", file=sys.stderr)
+    cmd = "python -m cedra report stability" + (" --quick" if quick else "")
+    summary = write(results, out, cmd, time.perf_counter() - t0)
+    print(f"wrote {out / 'stability.md'}")
+    for s in summary:
+        print(s)
+    return 1 if missing or any(not r.acceptable for r in results) else 0
