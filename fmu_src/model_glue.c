@@ -9,6 +9,7 @@
 #include "cedra_model.h"
 #include "cedra_vars.h"
 #include "linalg.h"
+#include "rigid.h"
 
 #define NQ CEDRA_NQ
 #define NZ CEDRA_NZ
@@ -26,6 +27,12 @@
                    MAX2(MAX2(cedra_settle_SZ_IW, cedra_guess_SZ_IW), cedra_check_SZ_IW))
 #define SZ_W MAX2(MAX2(MAX2(cedra_M_SZ_W, cedra_f_SZ_W), MAX2(cedra_rjac_SZ_W, cedra_out_SZ_W)), \
                   MAX2(MAX2(cedra_settle_SZ_W, cedra_guess_SZ_W), cedra_check_SZ_W))
+
+#if CEDRA_RIGID
+#define NC CEDRA_NC
+#else
+#define NC 1
+#endif
 
 #define SETTLE_MAX_ITER 60
 #define SETTLE_MAX_HALVINGS 30
@@ -46,13 +53,43 @@ struct model_ws {
     int spiv[DIM(NS)];
     double ok;
     char msg[256];
+    /* rigid contact (unused for compliant models) */
+    double Mraw[NQ * NQ], W[3 * NC * NQ], bias[3 * NC], vc[3 * NC], gap[NC], lambda[3 * NC];
+    int mode[NC];
+    double rwork[RIGID_WORK(NQ, NC)];
+    int riwork[RIGID_IWORK(NQ, NC)];
+    double xh[NX], fh[NX];
+    int i_mu, i_alpha, i_vstick;        /* where mu (input), rigid_alpha and v_stick (parameters) live */
+    int y_fn[NC], y_fx[NC], y_fy[NC], y_mode[NC];   /* output slots the contact solution fills */
 };
 
 size_t model_ws_size(void) { return sizeof(model_ws); }
 
+static int find_var(const char *name, int kind) {
+    for (int i = 0; i < CEDRA_NVARS; i++)
+        if (CEDRA_VARS[i].kind == kind && strcmp(CEDRA_VARS[i].name, name) == 0) return CEDRA_VARS[i].index;
+    return -1;
+}
+
 void model_bind(model_ws *ws, const double *inp, const double *par) {
     ws->inp = inp;
     ws->par = par;
+#if CEDRA_RIGID
+    ws->i_mu = find_var("mu", CEDRA_K_INP);
+    ws->i_alpha = find_var("rigid_alpha", CEDRA_K_PAR);
+    ws->i_vstick = find_var("v_stick", CEDRA_K_PAR);
+    for (int k = 0; k < NC; k++) {
+        char name[64];
+        snprintf(name, sizeof name, "wheel[%d].Fn", k + 1);
+        ws->y_fn[k] = find_var(name, CEDRA_K_OUT);
+        snprintf(name, sizeof name, "wheel[%d].Fx", k + 1);
+        ws->y_fx[k] = find_var(name, CEDRA_K_OUT);
+        snprintf(name, sizeof name, "wheel[%d].Fy", k + 1);
+        ws->y_fy[k] = find_var(name, CEDRA_K_OUT);
+        snprintf(name, sizeof name, "wheel[%d].mode", k + 1);
+        ws->y_mode[k] = find_var(name, CEDRA_K_OUT);
+    }
+#endif
 }
 
 const char *model_message(const model_ws *ws) { return ws->msg; }
@@ -104,6 +141,78 @@ static int eval_dynamics(model_ws *ws, const double *q, const double *u, double 
     return 0;
 }
 
+#if CEDRA_RIGID
+static rigid_params rigid_settings(const model_ws *ws) {
+    rigid_params p;
+    p.mu = ws->inp[ws->i_mu];
+    p.alpha = ws->par[ws->i_alpha];
+    p.v_stick = ws->par[ws->i_vstick];
+    p.gap_tol = 1e-6;     /* a wheel more than 1 um above the ground is airborne */
+    return p;
+}
+
+/* cedra_M (unfactored, into Mraw), cedra_f, cedra_contact at (q, u) */
+static int eval_rigid_terms(model_ws *ws, const double *q, const double *u, double t) {
+    ws->arg[0] = q;
+    ws->arg[1] = ws->par;
+    ws->res[0] = ws->Mraw;
+    if (cedra_M(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        snprintf(ws->msg, sizeof ws->msg, "cedra_M failed at t=%.17g", t);
+        return 1;
+    }
+    ws->arg[0] = q;
+    ws->arg[1] = u;
+    ws->arg[2] = ws->inp;
+    ws->arg[3] = ws->par;
+    ws->res[0] = ws->f;
+    ws->res[1] = ws->g;
+    if (cedra_f(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        snprintf(ws->msg, sizeof ws->msg, "cedra_f failed at t=%.17g", t);
+        return 1;
+    }
+    ws->res[0] = ws->W;
+    ws->res[1] = ws->bias;
+    ws->res[2] = ws->vc;
+    ws->res[3] = ws->gap;
+    if (cedra_contact(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        snprintf(ws->msg, sizeof ws->msg, "cedra_contact failed at t=%.17g", t);
+        return 1;
+    }
+    return 0;
+}
+
+/* accelerations and contact forces by the decision tree (rigid.h) */
+static int rigid_solve(model_ws *ws, const double *q, const double *u, double t, double *udot) {
+    if (eval_rigid_terms(ws, q, u, t)) return 1;
+    rigid_params p = rigid_settings(ws);
+    char why[160];
+    if (rigid_accelerations(NQ, NC, ws->Mraw, ws->f, ws->W, ws->bias, ws->vc, ws->gap, &p, udot, ws->lambda,
+                            ws->mode, ws->rwork, ws->riwork, why, sizeof why)) {
+        snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
+        return 1;
+    }
+    return 0;
+}
+#endif
+
+int model_post_step(void *ctx, double t, double *x) {
+#if CEDRA_RIGID
+    model_ws *ws = (model_ws *)ctx;
+    if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
+    rigid_params p = rigid_settings(ws);
+    char why[160];
+    int r = rigid_project(NQ, NC, x, x + NQ, ws->Mraw, ws->W, ws->vc, ws->gap, &p, ws->rwork, ws->riwork, why,
+                          sizeof why);
+    if (r < 0) snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
+    return r;
+#else
+    (void)ctx;
+    (void)t;
+    (void)x;
+    return 0;
+#endif
+}
+
 int model_rhs(void *ctx, double t, const double *x, double *xdot) {
     model_ws *ws = (model_ws *)ctx;
     const double *q = x, *u = x + NQ;
@@ -115,10 +224,15 @@ int model_rhs(void *ctx, double t, const double *x, double *xdot) {
         snprintf(ws->msg, sizeof ws->msg, "the state cannot be evaluated (cedra_check) at t=%.17g", t);
         return 1;
     }
+#if CEDRA_RIGID
+    if (rigid_solve(ws, q, u, t, xdot + NQ)) return 1;
+    memcpy(xdot, u, sizeof(double) * NQ);
+#else
     if (eval_dynamics(ws, q, u, t)) return 1;
     memcpy(xdot, u, sizeof(double) * NQ);
     memcpy(xdot + NQ, ws->f, sizeof(double) * NQ);
     linalg_lu_solve(NQ, ws->M, ws->piv, xdot + NQ);
+#endif
     if (NZ > 0) memcpy(xdot + 2 * NQ, ws->g, sizeof(double) * NZ);
     if (!all_finite(xdot, NX)) {
         snprintf(ws->msg, sizeof ws->msg, "the derivative is not finite at t=%.17g", t);
@@ -131,6 +245,21 @@ int model_rhs(void *ctx, double t, const double *x, double *xdot) {
 int model_jac(void *ctx, double t, const double *x, const double *xdot, double *jac) {
     model_ws *ws = (model_ws *)ctx;
     const double *q = x, *u = x + NQ;
+#if CEDRA_RIGID
+    /* The decision tree has no symbolic Jacobian: forward differences of F (rodas4 then runs with an
+     * approximate Jacobian; its error control still holds, its order may drop near mode switches). */
+    memcpy(ws->xh, x, sizeof(double) * NX);
+    for (int j = 0; j < NX; j++) {
+        double d = 1e-7 * fmax(1.0, fabs(x[j]));
+        ws->xh[j] = x[j] + d;
+        if (model_rhs(ctx, t, ws->xh, ws->fh)) return 1;
+        for (int i = 0; i < NX; i++) jac[i + (size_t)j * NX] = (ws->fh[i] - xdot[i]) / d;
+        ws->xh[j] = x[j];
+    }
+    (void)q;
+    (void)u;
+    return 0;
+#endif
     if (eval_dynamics(ws, q, u, t)) return 1;
     ws->arg[0] = q;
     ws->arg[1] = u;
@@ -181,6 +310,16 @@ int model_outputs(model_ws *ws, const double *x, double *y) {
         snprintf(ws->msg, sizeof ws->msg, "cedra_out failed");
         return 1;
     }
+#if CEDRA_RIGID
+    /* contact forces and modes are the decision tree's solution at this state */
+    if (rigid_solve(ws, x, x + NQ, 0.0, ws->xh)) return 1;
+    for (int k = 0; k < NC; k++) {
+        if (ws->y_fx[k] >= 0) y[ws->y_fx[k]] = ws->lambda[3 * k];
+        if (ws->y_fy[k] >= 0) y[ws->y_fy[k]] = ws->lambda[3 * k + 1];
+        if (ws->y_fn[k] >= 0) y[ws->y_fn[k]] = ws->lambda[3 * k + 2];
+        if (ws->y_mode[k] >= 0) y[ws->y_mode[k]] = ws->mode[k];
+    }
+#endif
     for (int i = 0; i < CEDRA_NY; i++) {
         if (!isfinite(y[i])) {
             snprintf(ws->msg, sizeof ws->msg, "the output %s is not finite (%g)", CEDRA_Y_NAMES[i], y[i]);

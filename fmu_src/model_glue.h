@@ -19,6 +19,9 @@ void model_clear_message(model_ws *ws);
 int model_rhs(void *ctx, double t, const double *x, double *xdot);
 int model_jac(void *ctx, double t, const double *x, const double *xdot, double *jac);
 
+/* post-step callback (solver.h): rigid contact projection; does nothing for compliant models */
+int model_post_step(void *ctx, double t, double *x);
+
 /* y = outputs at x; 0, or 1 (message) if the state cannot be evaluated or an output is not finite */
 int model_outputs(model_ws *ws, const double *x, double *y);
 /* 1 if cedra_check accepts (q, u), else 0 (message set) */

@@ -13,14 +13,9 @@
  * of 1e-10 picks the (almost) minimum-norm forces and changes the constraint accelerations by ~1e-10 lambda. */
 #define CFM 1e-10
 
-size_t rigid_workspace_size(int nq, int nc) {
-    size_t m = (size_t)MAX_ROWS(nc), n = (size_t)nq;
-    return n * n + n + 3 * m * n + m * m + 3 * m + 2 * (size_t)nc;
-}
+size_t rigid_workspace_size(int nq, int nc) { return (size_t)RIGID_WORK(nq, nc); }
 
-size_t rigid_iworkspace_size(int nq, int nc) {
-    return (size_t)nq + 3 * (size_t)MAX_ROWS(nc);
-}
+size_t rigid_iworkspace_size(int nq, int nc) { return (size_t)RIGID_IWORK(nq, nc); }
 
 static double row_dot(const double *W, int ldw, int row, const double *x, int nq) {
     double s = 0;

@@ -14,6 +14,9 @@ typedef struct {
     double gap_tol;   /* a wheel farther from the ground than this is airborne */
 } rigid_params;
 
+/* workspace sizes as constant expressions (for static arrays) and as functions */
+#define RIGID_WORK(nq, nc) ((nq) * (nq) + (nq) + 9 * (nc) * (nq) + 9 * (nc) * (nc) + 9 * (nc) + 2 * (nc))
+#define RIGID_IWORK(nq, nc) ((nq) + 9 * (nc))
 size_t rigid_workspace_size(int nq, int nc);   /* doubles */
 size_t rigid_iworkspace_size(int nq, int nc);  /* ints */
 

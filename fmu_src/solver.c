@@ -84,8 +84,8 @@ size_t solver_workspace_size(int method, int n) {
 /* ------------------------------------------------------------------------------------------------------------- */
 /* RK4: fixed step h_max; the last step is shortened so the interval is covered exactly. */
 
-static int rk4(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs, void *ctx,
-               double *work, solver_stats *st, char *msg, size_t msg_len) {
+static int rk4(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
+               solver_post_fn post, void *ctx, double *work, solver_stats *st, char *msg, size_t msg_len) {
     double *k1 = work, *k2 = k1 + n, *k3 = k2 + n, *k4 = k3 + n, *y = k4 + n;
     const double h = s->h_max;
     /* The 1e-12 keeps an interval that is a multiple of h up to rounding (0.010000000000000009 / 0.001)
@@ -110,6 +110,10 @@ static int rk4(const solver_settings *s, int n, double *x, double t0, double t1,
         }
         memcpy(x, y, sizeof(double) * (size_t)n);   /* x changes only after a complete, finite step */
         st->steps++;
+        if (post && post(ctx, tb, x) < 0) {
+            put_msg(msg, msg_len, "rk4: the post-step projection failed at t = %.15g", tb);
+            return 1;
+        }
         continue;
     fail:
         if (ev == EV_FAILED)
@@ -298,7 +302,8 @@ static double initial_step(int n, const double *x, double t, const double *f0, d
 }
 
 static int adaptive(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
-                    solver_jac_fn jac, void *ctx, double *w, solver_stats *st, char *msg, size_t msg_len) {
+                    solver_jac_fn jac, solver_post_fn post, void *ctx, double *w, solver_stats *st, char *msg,
+                    size_t msg_len) {
     const int dopri = s->method == SOLVER_DOPRI5;
     const char *name = dopri ? "dopri5" : "rodas4";
     /* The error estimate is O(h^(q+1)), q the lower of the two orders: 4 for DOPRI5, 3 for RODAS4. */
@@ -405,6 +410,14 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
             memcpy(f0, DP_K(w, n, 7), sizeof(double) * (size_t)n);   /* FSAL */
         else
             have_start = 0;
+        if (post) {
+            int pr = post(ctx, t, x);
+            if (pr < 0) {
+                put_msg(msg, msg_len, "%s: the post-step projection failed at t = %.15g", name, t);
+                return 1;
+            }
+            if (pr > 0) have_start = 0;   /* x moved: F(t, x) (FSAL) is stale */
+        }
         if (last) return 0;
     }
 
@@ -418,6 +431,12 @@ underflow:
 
 int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
                      solver_jac_fn jac, void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len) {
+    return solver_integrate_post(s, n, x, t0, t1, rhs, jac, NULL, ctx, work, stats, msg, msg_len);
+}
+
+int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
+                          solver_jac_fn jac, solver_post_fn post, void *ctx, double *work, solver_stats *stats,
+                          char *msg, size_t msg_len) {
     static const char *const names[SOLVER_N_METHODS] = {"rk4", "dopri5", "rodas4"};
     if (msg && msg_len) msg[0] = '\0';
     if (s->method < 0 || s->method >= SOLVER_N_METHODS) {
@@ -442,6 +461,6 @@ int solver_integrate(const solver_settings *s, int n, double *x, double t0, doub
         return 1;
     }
     if (n <= 0 || t1 == t0) return 0;   /* nothing to integrate */
-    if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, ctx, work, stats, msg, msg_len);
-    return adaptive(s, n, x, t0, t1, rhs, jac, ctx, work, stats, msg, msg_len);
+    if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, post, ctx, work, stats, msg, msg_len);
+    return adaptive(s, n, x, t0, t1, rhs, jac, post, ctx, work, stats, msg, msg_len);
 }

@@ -14,6 +14,11 @@ typedef int (*solver_rhs_fn)(void *ctx, double t, const double *x, double *xdot)
 /* Dense Jacobian dF/dx, column-major n x n, at (t, x) where xdot = F(t, x) is already known. */
 typedef int (*solver_jac_fn)(void *ctx, double t, const double *x, const double *xdot, double *jac);
 
+/* Called after every accepted step with the new state; it may change x in place (e.g. project a constrained
+ * state back onto its constraints, or apply an impact). Returns 0 if x is unchanged, 1 if it changed (the
+ * solver then re-evaluates F at x), negative on failure (the reason in the callback's context). */
+typedef int (*solver_post_fn)(void *ctx, double t, double *x);
+
 typedef struct {
     int method;        /* enum solver_method */
     double tol;        /* relative and absolute tolerance of the adaptive methods */
@@ -34,5 +39,9 @@ size_t solver_workspace_size(int method, int n);
 int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1,
                      solver_rhs_fn rhs, solver_jac_fn jac, void *ctx,
                      double *work, solver_stats *stats, char *msg, size_t msg_len);
+/* the same, with a post-step callback (NULL: none) */
+int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1,
+                          solver_rhs_fn rhs, solver_jac_fn jac, solver_post_fn post, void *ctx,
+                          double *work, solver_stats *stats, char *msg, size_t msg_len);
 
 #endif

@@ -99,11 +99,6 @@ or '(none)'}.</p>
 def build_fmu(spec: ModelSpec, build_dir) -> Path:
     """Generate, compile and package the FMU; returns <build_dir>/<spec.name>.fmu."""
     spec.check()
-    if spec.contact != "compliant":
-        # the glue does not yet call rigid.c (cedra_contact, decision tree, post-step projection): refuse rather
-        # than ship an FMU whose wheels fall through the ground
-        raise BuildError(f"model {spec.name}: contact = {spec.contact!r} is not supported by the FMU glue yet "
-                         "(compliant only)")
     build_dir = Path(build_dir).resolve()
     tree = build_dir / spec.name
     src, obj = tree / "sources", tree / "obj"
