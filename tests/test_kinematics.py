@@ -1,0 +1,43 @@
+"""Wheel kinematics (paper Eqs. 5-22, spec section 7): Jacobians against finite differences of the transform
+chains, the inverse solution against a forward rigid-body check, Eq. 11 against the closed forms of Eq. 13, and
+the geometric steering angles against the turn center."""
+import numpy as np
+import pytest
+
+from cedra import kinematics as kin
+from cedra.parameters import DEFAULTS
+
+D = DEFAULTS
+RNG = np.random.default_rng(7)
+
+
+def _random_pose():
+    q = np.array([RNG.uniform(-0.4, 0.4), RNG.uniform(-0.4, 0.4), D["fork_theta4_ref"] + RNG.uniform(-0.3, 0.3),
+                  RNG.uniform(-0.5, 0.5), RNG.uniform(-0.5, 0.5)])
+    return q, RNG.uniform(-0.4, 0.4), RNG.uniform(-0.3, 0.3)
+
+
+@pytest.mark.parametrize("i", range(1, 7))
+def test_jacobian_matches_finite_differences_of_the_chain(i):
+    """(d) Each column of J_i is minus the twist of M_i in R, -(dT/dq_k) T^-1, by central differences."""
+    jfun, tfun = kin.wheel_jacobian(i), kin.chain(i)
+    for _ in range(3):
+        q, psi, xi = _random_pose()
+        jac = np.array(jfun(q, psi, xi))
+        assert jac.shape == (6, len(kin.rate_names(i)))
+        base = dict(q=q, psi=psi, xi=xi, gamma=0.0)
+        t_inv = np.linalg.inv(np.array(tfun(q, psi, xi, 0.0)))
+        names = list(kin.CARRIER[i]) + ["gamma", "xi", "psi"]
+        h = 1e-6
+        for k, name in enumerate(names):
+            args = []
+            for sgn in (1, -1):
+                a = {key: (np.array(v, dtype=float).copy() if key == "q" else v) for key, v in base.items()}
+                if name in kin.JOINTS:
+                    a["q"][kin.JOINTS.index(name)] += sgn * h
+                else:
+                    a[name] += sgn * h
+                args.append(np.array(tfun(a["q"], a["psi"], a["xi"], a["gamma"])))
+            x = -(args[0] - args[1]) / (2 * h) @ t_inv
+            col = np.array([x[0, 3], x[1, 3], x[2, 3], x[1, 0], x[0, 2], x[2, 1]])
+            np.testing.assert_allclose(jac[:, k], col, atol=1e-7, rtol=0, err_msg=f"wheel {i}, {name}")
