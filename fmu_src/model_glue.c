@@ -65,11 +65,13 @@ struct model_ws {
 
 size_t model_ws_size(void) { return sizeof(model_ws); }
 
+#if CEDRA_RIGID
 static int find_var(const char *name, int kind) {
     for (int i = 0; i < CEDRA_NVARS; i++)
         if (CEDRA_VARS[i].kind == kind && strcmp(CEDRA_VARS[i].name, name) == 0) return CEDRA_VARS[i].index;
     return -1;
 }
+#endif
 
 void model_bind(model_ws *ws, const double *inp, const double *par) {
     ws->inp = inp;
