@@ -41,3 +41,17 @@ def test_jacobian_matches_finite_differences_of_the_chain(i):
             x = -(args[0] - args[1]) / (2 * h) @ t_inv
             col = np.array([x[0, 3], x[1, 3], x[2, 3], x[1, 0], x[0, 2], x[2, 1]])
             np.testing.assert_allclose(jac[:, k], col, atol=1e-7, rtol=0, err_msg=f"wheel {i}, {name}")
+
+
+def _random_inputs():
+    return dict(xdot_d=RNG.uniform(-0.5, 0.5), phidot_d=RNG.uniform(-0.8, 0.8),
+                theta=[RNG.uniform(-0.4, 0.4), RNG.uniform(-0.4, 0.4), D["fork_theta4_ref"] + RNG.uniform(-0.3, 0.3)],
+                theta_dot=RNG.uniform(-1, 1, 3), psi=RNG.uniform(-0.4, 0.4, 6), psi_dot=RNG.uniform(-1, 1, 6),
+                xi=RNG.uniform(-0.3, 0.3, 6), steer=RNG.uniform(-0.5, 0.5, 2))
+
+
+def test_eq11_numeric_equals_eq13_closed_form():
+    """(c) The actuated inverse solution with the Jacobians equals the closed forms at random inputs."""
+    for _ in range(20):
+        args = _random_inputs()
+        np.testing.assert_allclose(kin.wheel_rates(**args), kin.wheel_rates_numeric(**args), atol=1e-9, rtol=0)

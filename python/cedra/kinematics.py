@@ -117,3 +117,109 @@ def wheel_jacobian(i, p=None):
 def chain(i, p=None):
     """The chain itself: CasADi Function (q[5], psi_i, xi_i, gamma_i) -> T_R,Mi (4 x 4)."""
     return _functions(i, _pkey(p))[1]
+
+
+# ---------------------------------------------------------------- inverse kinematics (Eqs. 9-13)
+# Known in the inverse problem: xdot_d, phidot_d (= yawdot), the carrier rates thetadot1, thetadot2, thetadot4 and
+# psidot_i. Unknown: gammadot_i (actuated), xidot_i, ydot, zdot, pitchdot, rolldot. The steering rates are taken
+# as zero: about the steering axis they are indistinguishable from the rotational slip xidot (identical Jacobian
+# columns at psi = 0; the paper: "the steering rate ... is coupled with the rotational slip"), so xidot absorbs them.
+
+def _qvec(theta, steer):
+    return np.array([theta[0], theta[1], theta[2], steer[0], steer[1]], dtype=float)
+
+
+def _known_rate(name, theta_dot):
+    """Carrier rate known to the inverse solution (steering rates: zero, see above)."""
+    return {"theta1": theta_dot[0], "theta2": theta_dot[1], "theta4": theta_dot[2]}.get(name, 0.0)
+
+
+def wheel_rates_numeric(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, xi, steer, p=None):
+    """Eqs. 9-12 with the Jacobians: gammadot_i = [Ja' D(Ju) Ja]^-1 Ja' D(Ju) E v_d, D(J) = J (J'J)^-1 J' - I.
+    theta = (theta1, theta2, theta4), theta_dot likewise; psi, psi_dot, xi: six each; steer = (theta3, theta6)."""
+    q = _qvec(theta, steer)
+    eye = np.eye(6)
+    out = np.zeros(6)
+    for i in range(1, 7):
+        jac = np.array(wheel_jacobian(i, p)(q, psi[i - 1], xi[i - 1]))
+        nc = len(CARRIER[i])
+        carrier_dot = np.array([_known_rate(n, theta_dot) for n in CARRIER[i]])
+        b = xdot_d * eye[:, 0] + phidot_d * eye[:, 3] - jac[:, :nc] @ carrier_dot - jac[:, nc + 2] * psi_dot[i - 1]
+        ja = jac[:, nc:nc + 1]
+        ju = np.column_stack([jac[:, nc + 1], -eye[:, 1], -eye[:, 2], -eye[:, 4], -eye[:, 5]])
+        delta = ju @ np.linalg.solve(ju.T @ ju, ju.T) - eye
+        out[i - 1] = np.linalg.solve(ja.T @ delta @ ja, ja.T @ delta @ b)[0]
+    return out
+
+
+def _e(a):
+    return np.array([np.cos(a), 0.0, np.sin(a)])
+
+
+def _de(a):
+    return np.array([-np.sin(a), 0.0, np.cos(a)])
+
+
+def fork(theta4, p=None):
+    """Four-bar in numpy (spec section 2): theta5 and dtheta5/dtheta4 (implicit differentiation of |D - B| = b)."""
+    p = params(p)
+    a_pt, b_pt = np.array([p["fork_ax"], 0, p["fork_az"]]), np.array([p["fork_bx"], 0, p["fork_bz"]])
+    c_pt = a_pt + p["fork_a"] * _e(theta4)
+    d = c_pt - b_pt
+    k = (p["fork_b"] ** 2 - d @ d - p["fork_c"] ** 2) / (2 * p["fork_c"])
+    th5 = np.arctan2(d[2], d[0]) + np.arccos(k / np.linalg.norm(d))
+    db = c_pt + p["fork_c"] * _e(th5) - b_pt
+    dth5 = -(db @ (p["fork_a"] * _de(theta4))) / (p["fork_c"] * (db @ _de(th5)))
+    return th5, dth5, c_pt
+
+
+def _wheel6(theta4, theta6, psi6, xi6, p):
+    """Wheel 6 geometry in R: center, d(center)/dtheta4, contact-frame angular velocity per thetadot4, axle,
+    contact normal z_C and rolling direction x_M."""
+    th5, dth5, c_pt = fork(theta4, p)
+    center = c_pt - p["fork_wheel"] * _e(th5)
+    dcenter = p["fork_a"] * _de(theta4) - p["fork_wheel"] * _de(th5) * dth5
+    s = _e(th5)
+    k = np.array([[0, -s[2], s[1]], [s[2], 0, -s[0]], [-s[1], s[0], 0]])
+    steer = np.eye(3) + np.sin(theta6) * k + (1 - np.cos(theta6)) * k @ k        # rotation about s by theta6
+    cp, sp, cx, sx = np.cos(psi6), np.sin(psi6), np.cos(xi6), np.sin(xi6)
+    axle = steer @ [0, 1, 0]
+    z_c = steer @ [sp, 0, cp]
+    x_m = steer @ [cp * cx, sx, -sp * cx]
+    omega = dth5 * (axle - np.array([0, 1, 0]))      # C_6 = Rot(s(theta5), theta6) Rot_y(psi6) turns with theta5
+    return center, dcenter, omega, axle, z_c, x_m
+
+
+def wheel_rates(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, xi, steer, p=None):
+    """Eq. 13 with resolved signs: the six gammadot in closed form (same arguments as wheel_rates_numeric).
+
+    Bogie wheels (l1..l4 = bogie_x, bogie_y, bogie_z, bogie_half), exactly the paper's Eq. 13:
+      gammadot_1 = (xdot_d - l2 phidot_d - l4 s(th1) thdot1 - (l3 + l4 s(th1)) psidot_1) / (R_w c(psi_1) c(xi_1))
+      wheel 2: -l4 -> +l4 (rear); wheels 3, 4: -l2 -> +l2 and theta2.
+    Wheel 5 (l5, l6 = rear_x, rear_z):
+      gammadot_5 = (xdot_d - l6 c(th3) psidot_5 + l6 t(psi_5) s(th3) phidot_d)
+                   / (R_w (c(th3) c(psi_5) c(xi_5) - s(th3) s(xi_5)));
+      the paper drops the phidot_d term (zero when psi_5 = 0 or theta3 = 0), the exact solution of Eq. 11 has it.
+    All wheels, in vector form (c: wheel center, z = z_C, a: axle, x_M: rolling direction, for each known carrier
+    rate qdot the contact frame's angular velocity W qdot and the center's velocity dc qdot, all in R):
+      b_x   = xdot_d   - sum((W x c - dc)_x qdot) - (a x c)_x psidot
+      b_phi = phidot_d + sum(W_z qdot)            + a_z psidot
+      gammadot = (z_z b_x + (z x c)_x b_phi) / (R_w z_z x_M,x)
+    (the combination (z_z, (z x c)_x) of the x and yaw rows annihilates the slip column, Eq. 11's projection);
+    wheel 6 is evaluated in this form, its theta5 from the four-bar."""
+    p = params(p)
+    rw, l1, l2, l3, l4 = p["R_w"], p["bogie_x"], p["bogie_y"], p["bogie_z"], p["bogie_half"]
+    out = np.zeros(6)
+    for i, th, thd, side, front in ((1, 0, 0, 1, 1), (2, 0, 0, 1, -1), (3, 1, 1, -1, 1), (4, 1, 1, -1, -1)):
+        s_th = np.sin(theta[th])
+        num = (xdot_d - side * l2 * phidot_d - front * l4 * s_th * theta_dot[thd]
+               - (l3 + front * l4 * s_th) * psi_dot[i - 1])
+        out[i - 1] = num / (rw * np.cos(psi[i - 1]) * np.cos(xi[i - 1]))
+    th3, ps5, xi5, l6 = steer[0], psi[4], xi[4], p["rear_z"]
+    out[4] = ((xdot_d - l6 * np.cos(th3) * psi_dot[4] + l6 * np.tan(ps5) * np.sin(th3) * phidot_d)
+              / (rw * (np.cos(th3) * np.cos(ps5) * np.cos(xi5) - np.sin(th3) * np.sin(xi5))))
+    c, dc, w, a, z, x_m = _wheel6(theta[2], steer[1], psi[5], xi[5], p)
+    b_x = xdot_d - np.cross(w, c)[0] * theta_dot[2] + dc[0] * theta_dot[2] - np.cross(a, c)[0] * psi_dot[5]
+    b_phi = phidot_d + w[2] * theta_dot[2] + a[2] * psi_dot[5]
+    out[5] = (z[2] * b_x + np.cross(z, c)[0] * b_phi) / (rw * z[2] * x_m[0])
+    return out
