@@ -55,3 +55,29 @@ def test_eq11_numeric_equals_eq13_closed_form():
     for _ in range(20):
         args = _random_inputs()
         np.testing.assert_allclose(kin.wheel_rates(**args), kin.wheel_rates_numeric(**args), atol=1e-9, rtol=0)
+
+
+LEVEL = [0.0, 0.0, D["fork_theta4_ref"]]
+ZERO3, ZERO6 = np.zeros(3), np.zeros(6)
+MOTIONS = [(0.2, 0.5), (0.2, -0.5), (-0.3, 0.8), (0.1, -1.5), (0.25, 0.0)]
+
+
+def _contact(i, psi, theta=LEVEL, steer=(0.0, 0.0)):
+    """Contact point, rolling direction x_C, axle y_C and normal z_C of wheel i in R, from the chain at xi = 0."""
+    t = np.array(kin.chain(i)(np.r_[theta, steer], psi, 0.0, 0.0))
+    return t[:3, 3], t[:3, 0], t[:3, 1], t[:3, 2]
+
+
+@pytest.mark.parametrize("psi", [0.0, 0.25, -0.3])
+@pytest.mark.parametrize("xdot_d, phidot_d", MOTIONS)
+def test_inverse_reproduces_rigid_body_motion(psi, xdot_d, phidot_d):
+    """(a) The rover slides along the (possibly inclined, psi_i all equal) ground with forward speed xdot_d and
+    yaw rate phidot_d: v tangent to the ground with v_x = xdot_d, w along the ground normal with w_z = phidot_d.
+    Each bogie wheel's contact point then moves at v + w x r; R_w gammadot_i is its rolling-direction component."""
+    rates = kin.wheel_rates(xdot_d, phidot_d, LEVEL, ZERO3, np.full(6, psi), ZERO6, ZERO6, (0.0, 0.0))
+    for i in range(1, 5):
+        r, x_c, y_c, z_c = _contact(i, psi)
+        v = np.array([xdot_d, 0.0, -xdot_d * z_c[0] / z_c[2]])           # v . z_C = 0, v_y = 0
+        w = phidot_d / z_c[2] * z_c
+        assert abs(v @ z_c) < 1e-12
+        assert abs(D["R_w"] * rates[i - 1] - (v + np.cross(w, r)) @ x_c) < 1e-9, i

@@ -223,3 +223,45 @@ def wheel_rates(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, xi, steer, p=N
     b_phi = phidot_d + w[2] * theta_dot[2] + a[2] * psi_dot[5]
     out[5] = (z[2] * b_x + np.cross(z, c)[0] * b_phi) / (rw * z[2] * x_m[0])
     return out
+
+
+# ---------------------------------------------------------------- steering angles (Eqs. 14-22)
+
+def turn_centers(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, p=None):
+    """Eqs. 14-20 (phidot_d != 0): the turn centers c_i of the fixed wheels 1-4 in R (rows) and their mean.
+    xdot_i = R_w gammadot_i (xi = 0, Eq. 14), phidot_i = phidot_d / cos(psi_i) (the turn rate about the contact
+    normal whose yaw part is phidot_d, Eq. 15), r_i = xdot_i / phidot_i (Eq. 16), c_i = T_R,Ci (0, r_i, 0, 1)
+    (Eq. 17: r_i along the axle from the contact frame's origin, the wheel center)."""
+    p = params(p)
+    rates = wheel_rates(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, np.zeros(6), (0.0, 0.0), p)
+    centers = np.zeros((4, 3))
+    for i, th, side, front in ((1, 0, 1, 1), (2, 0, 1, -1), (3, 1, -1, 1), (4, 1, -1, -1)):
+        pivot = np.array([p["bogie_x"], side * p["bogie_y"], p["bogie_z"]])
+        r_i = p["R_w"] * rates[i - 1] / (phidot_d / np.cos(psi[i - 1]))
+        centers[i - 1] = pivot + front * p["bogie_half"] * _e(theta[th]) + r_i * np.array([0, 1, 0])
+    return centers, centers.mean(axis=0)
+
+
+def _steer_to(d, lean):
+    """Steering angle whose axle, projected on R's x-y plane, is (-lean s, c) and points along d = (dx, dy) or
+    its opposite (Eq. 22 with its lost minus sign: atan2(-sign(r_y) r_x, |r_y|); lean = sin of the steering
+    axis' elevation, 1 for wheel 5)."""
+    sgn = np.copysign(1.0, d[1])
+    return float(np.arctan2(-sgn * d[0], lean * abs(d[1])))
+
+
+def steering_angles(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, p=None):
+    """Eqs. 14-22: (theta3, theta6) so that the steered axles, projected on R's x-y plane, pass through the mean
+    turn center of the fixed wheels. phidot_d = 0 (straight) -> (0, 0).
+    Eq. 21 takes the turn center relative to the steered wheel's contact frame; since the steering axes are R's z
+    (wheel 5) and the coupler axis s = e(theta5) in R's x-z plane (wheel 6), the vector from the wheel center to
+    the turn center is projected on R's x-y plane. Wheel 6's axle (0, 1, 0) turned about s by theta6 projects to
+    (-sin(theta5) sin(theta6), cos(theta6)), hence the sin(theta5) in its atan2."""
+    if phidot_d == 0:
+        return 0.0, 0.0
+    p = params(p)
+    _, center = turn_centers(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, p)
+    c5 = np.array([p["rear_x"], 0.0, p["rear_z"]])
+    th5, _, c_pt = fork(theta[2], p)
+    c6 = c_pt - p["fork_wheel"] * _e(th5)
+    return _steer_to(center - c5, 1.0), _steer_to(center - c6, np.sin(th5))
