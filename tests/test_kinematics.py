@@ -81,3 +81,60 @@ def test_inverse_reproduces_rigid_body_motion(psi, xdot_d, phidot_d):
         w = phidot_d / z_c[2] * z_c
         assert abs(v @ z_c) < 1e-12
         assert abs(D["R_w"] * rates[i - 1] - (v + np.cross(w, r)) @ x_c) < 1e-9, i
+
+
+def _line_distance(point, through, direction):
+    """Distance in R's x-y plane from point to the line through `through` along `direction` (projected)."""
+    d = direction[:2] / np.linalg.norm(direction[:2])
+    e = point[:2] - through[:2]
+    return abs(e[0] * d[1] - e[1] * d[0])
+
+
+def _random_config():
+    return dict(theta=[RNG.uniform(-0.3, 0.3), RNG.uniform(-0.3, 0.3), D["fork_theta4_ref"] + RNG.uniform(-0.2, 0.2)],
+                theta_dot=RNG.uniform(-0.5, 0.5, 3), psi=RNG.uniform(-0.3, 0.3, 6), psi_dot=RNG.uniform(-0.5, 0.5, 6))
+
+
+@pytest.mark.parametrize("xdot_d, phidot_d", [m for m in MOTIONS if m[1] != 0])
+def test_steered_axles_pass_through_the_turn_center(xdot_d, phidot_d):
+    """(b) Level rover on flat ground, left and right turns: the turn center lies at y = xdot_d / phidot_d on the
+    bogies' mean axle (the line through the pivots; the four bogie axles are parallel lines at distinct x, so no
+    point lies on all of them: each fixed wheel's own center c_i lies on its own axle), and the axles of the
+    steered wheels 5 and 6 pass through it. Also at random poses, rates and contact angles for wheels 5 and 6."""
+    centers, center = kin.turn_centers(xdot_d, phidot_d, LEVEL, ZERO3, ZERO6, ZERO6)
+    assert abs(center[1] - xdot_d / phidot_d) < 1e-9
+    assert _line_distance(center, np.array([D["bogie_x"], 0, 0]), np.array([0, 1.0, 0])) < 1e-9
+    for i in range(1, 5):
+        r, _, y_c, z_c = _contact(i, 0.0)
+        assert _line_distance(centers[i - 1], r + D["R_w"] * z_c, y_c) < 1e-9
+    th3, th6 = kin.steering_angles(xdot_d, phidot_d, LEVEL, ZERO3, ZERO6, ZERO6)
+    assert np.sign(th3) == -np.sign(phidot_d * xdot_d) and np.sign(th6) == np.sign(phidot_d * xdot_d)
+    configs = [dict(theta=LEVEL, theta_dot=ZERO3, psi=ZERO6, psi_dot=ZERO6)] + [_random_config() for _ in range(5)]
+    for cfg in configs:
+        _, center = kin.turn_centers(xdot_d, phidot_d, **cfg)
+        steer = kin.steering_angles(xdot_d, phidot_d, **cfg)
+        for i in (5, 6):
+            r, _, y_c, z_c = _contact(i, cfg["psi"][i - 1], cfg["theta"], steer)
+            assert _line_distance(center, r + D["R_w"] * z_c, y_c) < 1e-9, (i, cfg)
+
+
+def test_straight_means_zero_steering():
+    assert kin.steering_angles(0.3, 0.0, LEVEL, ZERO3, ZERO6, ZERO6) == (0.0, 0.0)
+    assert kin.steering_angles(0.3, 0.0, **_random_config()) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("xdot_d, phidot_d", [m for m in MOTIONS if m[1] != 0])
+def test_steered_wheels_roll_without_side_slip_about_the_turn_center(xdot_d, phidot_d):
+    """Flat ground, level rover turning rigidly about the estimated turn center (v = w x (0 - center)): the
+    steered wheels' contact points move along their rolling directions, at R_w gammadot from the inverse solution."""
+    _, center = kin.turn_centers(xdot_d, phidot_d, LEVEL, ZERO3, ZERO6, ZERO6)
+    steer = kin.steering_angles(xdot_d, phidot_d, LEVEL, ZERO3, ZERO6, ZERO6)
+    rates = kin.wheel_rates(xdot_d, phidot_d, LEVEL, ZERO3, ZERO6, ZERO6, ZERO6, steer)
+    w = np.array([0, 0, phidot_d])
+    v = np.cross(w, -np.r_[center[:2], 0.0])
+    assert abs(v[0] - xdot_d) < 1e-12
+    for i in (5, 6):
+        r, x_c, y_c, _ = _contact(i, 0.0, LEVEL, steer)
+        vc = v + np.cross(w, r)
+        assert abs(vc @ y_c) < 1e-9, i
+        assert abs(D["R_w"] * rates[i - 1] - vc @ x_c) < 1e-9, i
