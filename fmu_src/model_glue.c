@@ -55,7 +55,8 @@ struct model_ws {
     char msg[256];
     /* rigid contact (unused for compliant models) */
     double Mraw[NQ * NQ], W[3 * NC * NQ], bias[3 * NC], vc[3 * NC], gap[NC], lambda[3 * NC];
-    int mode[NC];
+    int mode[NC], held_mode[NC], have_modes;
+    double dir[2 * NC], held_dir[2 * NC];
     double rwork[RIGID_WORK(NQ, NC)];
     int riwork[RIGID_IWORK(NQ, NC)];
     double xh[NX], fh[NX];
@@ -77,6 +78,7 @@ void model_bind(model_ws *ws, const double *inp, const double *par) {
     ws->inp = inp;
     ws->par = par;
 #if CEDRA_RIGID
+    ws->have_modes = 0;     /* the first evaluation decides the modes from the state */
     ws->i_mu = find_var("mu", CEDRA_K_INP);
     ws->i_alpha = find_var("rigid_alpha", CEDRA_K_PAR);
     ws->i_vstick = find_var("v_stick", CEDRA_K_PAR);
@@ -183,17 +185,34 @@ static int eval_rigid_terms(model_ws *ws, const double *q, const double *u, doub
     return 0;
 }
 
-/* accelerations and contact forces by the decision tree (rigid.h) */
-static int rigid_solve(model_ws *ws, const double *q, const double *u, double t, double *udot) {
+/* Accelerations and contact forces. As in the paper, the decision tree runs once per time step: decide != 0
+ * runs it at this state (after each accepted step, for outputs, at the start of a communication step); the
+ * evaluations inside an integration step hold those modes and slip directions, so that each step integrates
+ * one smooth system instead of chattering on the switching surfaces. */
+static int rigid_solve(model_ws *ws, const double *q, const double *u, double t, double *udot, int decide) {
     if (eval_rigid_terms(ws, q, u, t)) return 1;
     rigid_params p = rigid_settings(ws);
     char why[160];
-    if (rigid_accelerations(NQ, NC, ws->Mraw, ws->f, ws->W, ws->bias, ws->vc, ws->gap, &p, udot, ws->lambda,
-                            ws->mode, ws->rwork, ws->riwork, why, sizeof why)) {
+    if (!decide) {
+        memcpy(ws->mode, ws->held_mode, sizeof ws->mode);
+        memcpy(ws->dir, ws->held_dir, sizeof ws->dir);
+    }
+    if (rigid_solve_modes(NQ, NC, ws->Mraw, ws->f, ws->W, ws->bias, ws->vc, ws->gap, &p, decide, ws->mode,
+                          ws->dir, udot, ws->lambda, ws->rwork, ws->riwork, why, sizeof why)) {
         snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
         return 1;
     }
     return 0;
+}
+
+/* run the decision tree at x and hold its modes; 1 if they differ from the held ones */
+static int rigid_decide(model_ws *ws, const double *x, double t) {
+    if (rigid_solve(ws, x, x + NQ, t, ws->fh, 1)) return -1;
+    int changed = !ws->have_modes || memcmp(ws->mode, ws->held_mode, sizeof ws->mode) != 0;
+    memcpy(ws->held_mode, ws->mode, sizeof ws->mode);
+    memcpy(ws->held_dir, ws->dir, sizeof ws->dir);
+    ws->have_modes = 1;
+    return changed;
 }
 #endif
 
@@ -205,8 +224,13 @@ int model_post_step(void *ctx, double t, double *x) {
     char why[160];
     int r = rigid_project(NQ, NC, x, x + NQ, ws->Mraw, ws->W, ws->vc, ws->gap, &p, ws->rwork, ws->riwork, why,
                           sizeof why);
-    if (r < 0) snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
-    return r;
+    if (r < 0) {
+        snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
+        return r;
+    }
+    int d = rigid_decide(ws, x, t);
+    if (d < 0) return -1;
+    return r || d;     /* a new mode set changes F at x: the solver must not reuse F (FSAL) */
 #else
     (void)ctx;
     (void)t;
@@ -227,7 +251,8 @@ int model_rhs(void *ctx, double t, const double *x, double *xdot) {
         return 1;
     }
 #if CEDRA_RIGID
-    if (rigid_solve(ws, q, u, t, xdot + NQ)) return 1;
+    if (!ws->have_modes && rigid_decide(ws, x, t) < 0) return 1;
+    if (rigid_solve(ws, q, u, t, xdot + NQ, 0)) return 1;
     memcpy(xdot, u, sizeof(double) * NQ);
 #else
     if (eval_dynamics(ws, q, u, t)) return 1;
@@ -314,7 +339,7 @@ int model_outputs(model_ws *ws, const double *x, double *y) {
     }
 #if CEDRA_RIGID
     /* contact forces and modes are the decision tree's solution at this state */
-    if (rigid_solve(ws, x, x + NQ, 0.0, ws->xh)) return 1;
+    if (rigid_solve(ws, x, x + NQ, 0.0, ws->xh, 1)) return 1;
     for (int k = 0; k < NC; k++) {
         if (ws->y_fx[k] >= 0) y[ws->y_fx[k]] = ws->lambda[3 * k];
         if (ws->y_fy[k] >= 0) y[ws->y_fy[k]] = ws->lambda[3 * k + 1];

@@ -27,10 +27,23 @@ int rigid_accelerations(int nq, int nc, const double *M, const double *f, const 
                         const double *vc, const double *gap, const rigid_params *p,
                         double *udot, double *lambda, int *mode, double *work, int *iwork,
                         char *msg, size_t msg_len) {
+    double dir[2 * 64];
+    if (nc > 64) {
+        snprintf(msg, msg_len, "rigid contact: at most 64 contacts");
+        return 1;
+    }
+    return rigid_solve_modes(nq, nc, M, f, W, bias, vc, gap, p, 1, mode, dir, udot, lambda, work, iwork, msg,
+                             msg_len);
+}
+
+int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const double *W, const double *bias,
+                      const double *vc, const double *gap, const rigid_params *p, int decide, int *mode,
+                      double *dir, double *udot, double *lambda, double *work, int *iwork, char *msg,
+                      size_t msg_len) {
     const int ldw = 3 * nc, mmax = MAX_ROWS(nc);
     double *Mlu = work, *Xf = Mlu + nq * nq, *C = Xf + nq, *D = C + (size_t)mmax * nq,
            *Dt = D + (size_t)mmax * nq, *A = Dt + (size_t)nq * mmax, *r = A + (size_t)mmax * mmax,
-           *lam = r + mmax, *target = lam + mmax, *dir = target + mmax;
+           *lam = r + mmax, *target = lam + mmax; /* target + mmax: spare */
     int *piv = iwork, *piv2 = piv + nq, *row_contact = piv2 + mmax, *row_comp = row_contact + mmax;
 
     memcpy(Mlu, M, sizeof(double) * (size_t)nq * nq);
@@ -41,8 +54,17 @@ int rigid_accelerations(int nq, int nc, const double *M, const double *f, const 
     memcpy(Xf, f, sizeof(double) * nq);
     linalg_lu_solve(nq, Mlu, piv, Xf);
 
+    /* held modes: a slipping contact's friction still follows its current sliding direction (Eq. 67), which is
+     * smooth while it slides; only near |v_t| = 0 the direction held from the decision is kept */
+    for (int k = 0; !decide && k < nc; k++) {
+        double vx = vc[3 * k], vy = vc[3 * k + 1], vt = hypot(vx, vy);
+        if (mode[k] == RIGID_SLIP && vt > p->v_stick) {
+            dir[2 * k] = -vx / vt;
+            dir[2 * k + 1] = -vy / vt;
+        }
+    }
     /* modes implied by the state */
-    for (int k = 0; k < nc; k++) {
+    for (int k = 0; decide && k < nc; k++) {
         double vx = vc[3 * k], vy = vc[3 * k + 1], vt = hypot(vx, vy);
         if (gap[k] > p->gap_tol) {
             mode[k] = RIGID_AIRBORNE;
@@ -120,6 +142,7 @@ int rigid_accelerations(int nq, int nc, const double *M, const double *f, const 
             }
         }
 
+        if (!decide) return 0;
         /* the decision tree: lift-off first (Eq. 64 no longer holds), then the friction cone (Eq. 66) */
         int changed = 0;
         for (int k = 0; k < nc; k++)

@@ -29,6 +29,13 @@ int rigid_accelerations(int nq, int nc, const double *M, const double *f, const 
                         const double *vc, const double *gap, const rigid_params *p,
                         double *udot, double *lambda, int *mode, double *work, int *iwork,
                         char *msg, size_t msg_len);
+/* One solve with the given modes and slip directions (dir: 2 per contact, the friction direction of a slipping
+ * contact in the contact frame's x-y), no switching: what an integration step uses between decisions. With
+ * decide != 0 this is rigid_accelerations and dir is filled in. */
+int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const double *W, const double *bias,
+                      const double *vc, const double *gap, const rigid_params *p, int decide, int *mode,
+                      double *dir, double *udot, double *lambda, double *work, int *iwork, char *msg,
+                      size_t msg_len);
 
 /* Post-step stabilization: penetrating contacts (gap < 0) are moved onto gap = 0
  * (minimum-norm Gauss-Newton step dq = -Wn' (Wn Wn')^-1 gap, using dgap/dq = Wn since qdot = u), and an
