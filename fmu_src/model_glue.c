@@ -219,14 +219,19 @@ static int rigid_decide(model_ws *ws, const double *x, double t) {
 int model_post_step(void *ctx, double t, double *x) {
 #if CEDRA_RIGID
     model_ws *ws = (model_ws *)ctx;
-    if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
     rigid_params p = rigid_settings(ws);
     char why[160];
-    int r = rigid_project(NQ, NC, x, x + NQ, ws->Mraw, ws->W, ws->vc, ws->gap, &p, ws->rwork, ws->riwork, why,
-                          sizeof why);
-    if (r < 0) {
-        snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
-        return r;
+    int r = 0;
+    for (int it = 0; it < 8; it++) {     /* Gauss-Newton on the gaps: stop when no contact penetrates */
+        if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
+        int rk = rigid_project(NQ, NC, x, x + NQ, ws->Mraw, ws->W, ws->vc, ws->gap, &p, ws->rwork, ws->riwork,
+                               why, sizeof why);
+        if (rk < 0) {
+            snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
+            return rk;
+        }
+        if (rk == 0) break;
+        r = 1;
     }
     int d = rigid_decide(ws, x, t);
     if (d < 0) return -1;
