@@ -20,7 +20,7 @@ from ..scene import load_shipped
 from .common import Problem, Schedule, fmt, fmu_path, md_table, run_fmu, torques
 
 ENERGY_REL_TOL = 1e-5      # allowed energy increase, relative to |E(0)|, in zero-torque dissipative cases
-WALL_BUDGET = 120.0        # s of wall time per run; a run still going is stopped and reported as such
+WALL_BUDGET = 60.0         # s of wall time per run; a run still going is stopped and reported as such
 
 SOLVERS = {                 # name -> (method, tol, h_max): the scene defaults; rk4 at a step it can survive
     "rodas4": ("rodas4", 1e-6, 0.01),
