@@ -33,6 +33,11 @@ def cmd_simulate(args):
     return simulate.main(Path(args.build) / "bump2d.fmu", Path(args.out) / "bump2d", args.stop_time)
 
 
+def cmd_compare(args):
+    from . import compare
+    return compare.main(args.build, args.out, args.stop_time)
+
+
 def cmd_bench(args):
     from . import bench
     return bench.main(args)
@@ -57,6 +62,10 @@ def main(argv=None):
     s.add_argument("--build", default="build")
     s.add_argument("--out", default="out")
     s.add_argument("--stop-time", type=float, default=15.0)
+    c = sub.add_parser("compare", help="compliant vs rigid contact on the bump (same torques)")
+    c.add_argument("--build", default="build")
+    c.add_argument("--out", default="out/compare")
+    c.add_argument("--stop-time", type=float, default=15.0)
     be = sub.add_parser("bench", help="benchmark the shipped FMUs (prints figures)")
     be.add_argument("--build", default="build")
     be.add_argument("--stop-time", type=float, default=10.0)
@@ -66,7 +75,9 @@ def main(argv=None):
     r.add_argument("--out", default="out/report")
     r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")
     args = ap.parse_args(argv)
-    return {"build": cmd_build, "simulate": cmd_simulate, "bench": cmd_bench, "report": cmd_report}[args.cmd](args)
+    commands = {"build": cmd_build, "simulate": cmd_simulate, "compare": cmd_compare, "bench": cmd_bench,
+                "report": cmd_report}
+    return commands[args.cmd](args)
 
 
 if __name__ == "__main__":

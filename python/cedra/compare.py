@@ -35,8 +35,7 @@ def replay(fmu_path, torques, names):
 
 
 def drift(names, rows):
-    """Largest |gap| of wheels in contact (mode 1 or 2) over the run, from the wheel center height above the
-    terrain is not available in general; cedra_out reports it as wheel[i].gap for rigid scenes."""
+    """Largest |gap| (output wheel[i].gap of rigid scenes) of wheels in contact (mode 1 or 2) over the run."""
     worst = 0.0
     for i in range(1, 7):
         if f"wheel[{i}].gap" not in names:
