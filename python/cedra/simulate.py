@@ -40,10 +40,10 @@ def recorded(fmu: RoverFMU) -> list[str]:
     return [n for n in names if fmu.has(n)]
 
 
-def run_bump(fmu_path, stop_time=15.0, settings: dict | None = None):
+def run_bump(fmu_path, stop_time=15.0, settings: dict | None = None, extra=()):
     """Run the paper's bump scene; returns (names, data rows, torques, info)."""
     fmu = RoverFMU(fmu_path)
-    names = recorded(fmu)
+    names = recorded(fmu) + [n for n in extra if fmu.has(n)]
     ctrl = SpeedController()
     rows, torques = [], []
     wall = time.perf_counter()
