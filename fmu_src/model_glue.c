@@ -113,7 +113,12 @@ int model_check(model_ws *ws, const double *q, const double *u) {
     ws->arg[3] = ws->par;
     ws->res[0] = &ws->ok;
     if (cedra_check(ws->arg, ws->res, ws->iw, ws->w, 0) || !(ws->ok >= 0.5)) {
-        snprintf(ws->msg, sizeof ws->msg, "the state cannot be evaluated (cedra_check)");
+        /* the codes of python/cedra/spec.py CHECK_REASONS */
+        const char *why = ws->ok == -1 ? "the front four-bar cannot be assembled (fork beyond its toggle)"
+                          : ws->ok == -2 ? "the body has tipped over (|pitch| or |roll| > 80 deg): the model has "
+                                           "no body-ground contact"
+                                         : "the state is outside the model's domain";
+        snprintf(ws->msg, sizeof ws->msg, "%s (cedra_check)", why);
         return 0;
     }
     return 1;
@@ -252,7 +257,8 @@ int model_rhs(void *ctx, double t, const double *x, double *xdot) {
         return 1;
     }
     if (!model_check(ws, q, u)) {
-        snprintf(ws->msg, sizeof ws->msg, "the state cannot be evaluated (cedra_check) at t=%.17g", t);
+        size_t len = strlen(ws->msg);
+        snprintf(ws->msg + len, sizeof ws->msg - len, " at t=%.17g", t);
         return 1;
     }
 #if CEDRA_RIGID

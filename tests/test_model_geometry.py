@@ -102,8 +102,13 @@ def test_assembly_check(m3):
         assert np.isfinite(float(th5(q, par)))
     for t in (-1.5, -2.0, -1.0):          # beyond the toggle (|K| > |d| for theta4 below about -0.95)
         q[i4] = t
-        assert float(fns["cedra_check"](q, np.zeros(n), inp, par)) == 0, t
+        assert float(fns["cedra_check"](q, np.zeros(n), inp, par)) == -1, t   # spec.CHECK_REASONS
         assert np.isnan(float(th5(q, par))), t
+    q = np.array(m3.spec("x").q_start)
+    for name, angle, code in (("pitch", 1.39, 1), ("pitch", -1.41, -2), ("roll", 1.41, -2), ("roll", -1.39, 1)):
+        qq = q.copy()
+        qq[m3.q_names.index(name)] = angle     # tipped over beyond 80 deg: outside the model's domain
+        assert float(fns["cedra_check"](qq, np.zeros(n), inp, par)) == code, (name, angle)
 
 
 # ---------------------------------------------------------------- velocities vs finite differences

@@ -224,9 +224,15 @@ class CedraModel:
             "cedra_out": ca.Function("cedra_out", [q, u, z, inp, par], [y]),
             "cedra_settle": ca.Function("cedra_settle", [q, inp, par], [res, jac]),
             "cedra_guess": ca.Function("cedra_guess", [q, inp, par], [self.guess()]),
-            "cedra_check": ca.Function("cedra_check", [q, u, inp, par],
-                                       [ca.if_else(ca.fabs(self.rover.closure) < 1, 1, 0)]),
+            "cedra_check": ca.Function("cedra_check", [q, u, inp, par], [self.check()]),
         }
+
+    def check(self):
+        """cedra_check's code (spec.CHECK_REASONS): 1 inside the domain, -1 four-bar toggle, -2 tipped over.
+        Beyond 80 deg of pitch or roll the body would be lying on the ground, which the model does not know (and
+        3D pitch reaches the ZYX Euler singularity at 90 deg): the FMU stops there loudly instead of grinding."""
+        tilt = ca.fmax(ca.fabs(self.qf[IDX["pitch"]]), ca.fabs(self.qf[IDX["roll"]]))
+        return ca.if_else(ca.fabs(self.rover.closure) >= 1, -1, ca.if_else(tilt > 80 * ca.pi / 180, -2, 1))
 
     def guess(self):
         """A pose in light contact with the terrain under (x, y) for the settle Newton: body level with the

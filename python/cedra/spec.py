@@ -27,8 +27,8 @@ matrices column-major):
                   puts the model in contact with its terrain (e.g. z from the terrain height under the rover).
                   Used only when the Boolean parameter start.settle is true (then: q = cedra_guess(q_start),
                   then Newton on cedra_settle).
-    cedra_check  (q, u, inp, par)       -> (ok[1])  1 where the state can be evaluated (e.g. the four-bar can
-                  be assembled), 0 otherwise; the glue refuses such states with a logged reason.
+    cedra_check  (q, u, inp, par)       -> (ok[1])  1 where the state is inside the model's domain; otherwise a
+                  code <= 0 that names the reason (CHECK_REASONS below); the glue refuses such states with it.
 
 Rigid contact (contact == "rigid", the paper's decision tree) adds one function; cedra_f then holds every force
 except the contact forces, and the glue solves for accelerations and contact forces together:
@@ -44,6 +44,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import casadi as ca
+
+# cedra_check's codes (the C glue has the same table in model_glue.c)
+CHECK_REASONS = {
+    0: "the state is outside the model's domain",
+    -1: "the front four-bar cannot be assembled (fork beyond its toggle)",
+    -2: "the body has tipped over (|pitch| or |roll| > 80 deg): the model has no body-ground contact",
+}
 
 FUNCTION_NAMES = ("cedra_M", "cedra_f", "cedra_rjac", "cedra_out", "cedra_settle", "cedra_guess", "cedra_check")
 
