@@ -124,11 +124,11 @@ int model_check(model_ws *ws, const double *q, const double *u) {
     return 1;
 }
 
-/* M and its LU factors at q, f and g at (q, u) */
-static int eval_dynamics(model_ws *ws, const double *q, const double *u, double t) {
+/* M at q into M, f and g at (q, u); the arguments stay set to (q, u, inp, par) for a following call */
+static int eval_M_f(model_ws *ws, const double *q, const double *u, double t, double *M) {
     ws->arg[0] = q;
     ws->arg[1] = ws->par;
-    ws->res[0] = ws->M;
+    ws->res[0] = M;
     if (cedra_M(ws->arg, ws->res, ws->iw, ws->w, 0)) {
         snprintf(ws->msg, sizeof ws->msg, "cedra_M failed at t=%.17g", t);
         return 1;
@@ -143,6 +143,12 @@ static int eval_dynamics(model_ws *ws, const double *q, const double *u, double 
         snprintf(ws->msg, sizeof ws->msg, "cedra_f failed at t=%.17g", t);
         return 1;
     }
+    return 0;
+}
+
+/* M and its LU factors at q, f and g at (q, u) */
+static int eval_dynamics(model_ws *ws, const double *q, const double *u, double t) {
+    if (eval_M_f(ws, q, u, t, ws->M)) return 1;
     if (linalg_lu_factor(NQ, ws->M, ws->piv)) {
         snprintf(ws->msg, sizeof ws->msg, "the mass matrix is singular or not finite at t=%.17g", t);
         return 1;
@@ -162,23 +168,7 @@ static rigid_params rigid_settings(const model_ws *ws) {
 
 /* cedra_M (unfactored, into Mraw), cedra_f, cedra_contact at (q, u) */
 static int eval_rigid_terms(model_ws *ws, const double *q, const double *u, double t) {
-    ws->arg[0] = q;
-    ws->arg[1] = ws->par;
-    ws->res[0] = ws->Mraw;
-    if (cedra_M(ws->arg, ws->res, ws->iw, ws->w, 0)) {
-        snprintf(ws->msg, sizeof ws->msg, "cedra_M failed at t=%.17g", t);
-        return 1;
-    }
-    ws->arg[0] = q;
-    ws->arg[1] = u;
-    ws->arg[2] = ws->inp;
-    ws->arg[3] = ws->par;
-    ws->res[0] = ws->f;
-    ws->res[1] = ws->g;
-    if (cedra_f(ws->arg, ws->res, ws->iw, ws->w, 0)) {
-        snprintf(ws->msg, sizeof ws->msg, "cedra_f failed at t=%.17g", t);
-        return 1;
-    }
+    if (eval_M_f(ws, q, u, t, ws->Mraw)) return 1;
     ws->res[0] = ws->W;
     ws->res[1] = ws->bias;
     ws->res[2] = ws->vc;

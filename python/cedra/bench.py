@@ -104,6 +104,22 @@ def bench_scene(name, build, stop_time):
     return out
 
 
+def bench_contact(build, stop_time):
+    """The bump run (the main job's speed controller) with the compliant and the rigid contact model."""
+    from .simulate import run_bump
+    rows = {}
+    for name in ("bump2d", "bump2d_rigid"):
+        path = build / f"{name}.fmu"
+        if not path.exists():
+            rows[name] = None
+            continue
+        names, data, _, info = run_bump(path, stop_time)
+        last = dict(zip(names, data[-1]))
+        rows[name] = dict(wall=info["wall"], reached=info["simulated"], ok=info["ok"], steps=int(last["solver.steps"]),
+                          rejected=int(last["solver.rejected"]), evals=int(last["solver.rhs_evals"]))
+    return rows
+
+
 def main(args):
     build = Path(getattr(args, "build", "build"))
     stop_time = float(getattr(args, "stop_time", 10.0))
@@ -135,4 +151,15 @@ def main(args):
               f"rhs evals {o['peer_evals']}" + ("" if o["peer_ok"] else " (failed)"))
         if o["fmu_ok"]:
             print(f"  ratio peer / FMU wall time: x{o['peer_wall'] / o['fmu_wall']:.1f}")
+    print(f"\ncontact models on the bump run ({stop_time:g} s, the main job's speed controller, rodas4 tol 1e-6)")
+    rows = bench_contact(build, stop_time)
+    for name, r in rows.items():
+        if r is None:
+            print(f"  {name}: FMU not found (python -m cedra build {name})")
+            rc = 1
+            continue
+        print(f"  {name:13s} wall {r['wall']:.3f} s, real-time factor {r['reached'] / r['wall']:.1f}, steps "
+              f"{r['steps']}, rejected {r['rejected']}, rhs evals {r['evals']}" + ("" if r["ok"] else " (STOPPED)"))
+    if all(rows.values()):
+        print(f"  ratio rigid / compliant wall time: x{rows['bump2d_rigid']['wall'] / rows['bump2d']['wall']:.2f}")
     return rc

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..spec import CHECK_REASONS
 from ..scene import load_shipped
 from .common import Problem, Schedule, fmt, fmu_path, md_table, run_fmu, torques
 
@@ -114,12 +115,19 @@ class Result:
         return self.e_increase is None or self.e_increase <= self.e_tol + (self.e_ref or 0.0)
 
     @property
+    def outside_domain(self):
+        """Stopped loudly because the state left the model's domain (cedra_check: the rover tipped over, or the
+        fork passed its toggle): the model, not the solver, ends there (spec.CHECK_REASONS)."""
+        return self.status == "discard" and any(r in self.reason for r in DOMAIN_REASONS)
+
+    @property
     def acceptable(self):
         """The issue's rule: never NaN; the energy never grows; the implicit solver finishes every meaningful
-        case; an explicit solver may stop, but only with status discard and a message."""
+        case; an explicit solver may stop, but only with status discard and a message. A run that leaves the
+        model's domain (tipped over) is not physically meaningful past that point: a loud discard is right."""
         if self.nan or not self.energy_ok:
             return False
-        if self.finished:
+        if self.finished or self.outside_domain:
             return True
         if self.solver == "rodas4" and self.case.meaningful:
             return False
@@ -128,6 +136,7 @@ class Result:
         return self.status == "discard" and bool(self.reason)
 
 
+DOMAIN_REASONS = [why for code, why in CHECK_REASONS.items() if code < 0]
 _PROBLEMS: dict = {}
 
 
@@ -214,7 +223,8 @@ def write(results, out_dir: Path, command, wall_total):
                      fmt(r.rejected), fmt(r.wall), fmt(r.e_increase) if r.e_increase is not None else "-",
                      fmt(r.e_ref) if r.e_ref is not None else "-",
                      fmt(r.e_tol) if r.e_tol is not None else "-", fmt(r.nan) + (f" at {r.nan_at:g} s" if r.nan else ""),
-                     ("slow" if r.timeout else "ok") if r.acceptable else "**FAIL**"])
+                     ("outside domain" if r.outside_domain else "slow" if r.timeout else "ok")
+                     if r.acceptable else "**FAIL**"])
     bad = [r for r in results if not r.acceptable]
     md = ["# Stability report", "",
           f"Produced by `{command}` in {wall_total:.0f} s on this machine; every figure is measured in that run.", "",
@@ -236,9 +246,12 @@ def write(results, out_dir: Path, command, wall_total):
           f"**energy tol** = {ENERGY_REL_TOL:g} |E(0)|; **NaN ever** = any Real output non-finite at any "
           "communication point. **verdict**: ok when no NaN, no energy growth beyond the tolerance, and either "
           "finished or (explicit solvers only, or a case marked not physically meaningful) stopped with status "
-          f"`discard` and a logged reason. A run still going after {WALL_BUDGET:g} s of wall time is stopped by "
-          "the report (said in the reason column; verdict **slow**: an explicit solver on a stiff case that neither "
-          "finishes nor stops, because the FMU has no limit on the number of steps).", "",
+          f"`discard` and a logged reason; **outside domain**: any solver stopped with `discard` because the state "
+          "left the model's domain (the rover tipped over beyond 80 deg, or the fork passed its four-bar toggle: "
+          "the model has no body-ground contact, so nothing after that point is physical). A run still going "
+          f"after {WALL_BUDGET:g} s of wall time is stopped by the report (said in the reason column; verdict "
+          "**slow**: an explicit solver on a stiff case that neither finishes nor stops: the FMU's step limit is "
+          "per communication step (500000), which a 0.01 s communication step never reaches).", "",
           md_table(HEADER, rows), "",
           "## Summary", "",
           f"- {len(results)} runs, {sum(r.finished for r in results)} finished, {len(bad)} failed the rule "
