@@ -106,7 +106,7 @@ def plot(out_dir, names, rows, torques, terrain):
     fig.savefig(Path(out_dir) / "forces.png", dpi=110)
     plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(10, 4))
+    fig, ax = plt.subplots(figsize=(10, 3.2))
     X = np.linspace(col["body.x"].min() - 0.5, col["body.x"].max() + 0.5, 600)
     ax.fill_between(X, terrain(X), -0.05, color="0.8", label="terrain")
     ax.plot(col["body.x"], col["body.z"], "k", label="body mass center")
@@ -123,11 +123,9 @@ def plot(out_dir, names, rows, torques, terrain):
 
 
 def main(fmu_path="build/bump2d.fmu", out_dir="out/bump2d", stop_time=15.0):
-    from .driver import RoverFMU as _F
-    probe = _F(fmu_path)
-    start = {v.name: float(v.start) for v in probe.md.modelVariables
+    from fmpy import read_model_description
+    start = {v.name: float(v.start) for v in read_model_description(str(fmu_path)).modelVariables
              if v.name in ("terrain_h", "terrain_w", "terrain_x0")}
-    probe.close()
 
     def terrain(X):
         return start["terrain_h"] * np.exp(-((X - start["terrain_x0"]) / start["terrain_w"]) ** 2)
