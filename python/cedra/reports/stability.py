@@ -70,8 +70,9 @@ def cases(quick=False) -> list[Case]:
     cs.append(Case("drop from 0.3 m, zero torque", dz=0.3, t_end=2.0, energy=True))
     cs.append(Case("drop from 0.3 m onto ground_k 1e7, zero torque", dz=0.3, t_end=2.0, energy=True,
                    overrides={"ground_k": 1e7}))
-    cs.append(Case("torque step 0 -> 50 N.m at 0.5 s", t_end=2.0,
-                   schedule=Schedule([0.0, 0.5], [torques(0.0), torques(50.0)])))
+    for tau in (5.0, 10.0, 20.0, 50.0):      # where the rover's domain ends (it flips: a loud discard)
+        cs.append(Case(f"torque step 0 -> {tau:g} N.m at 0.5 s", t_end=2.0,
+                       schedule=Schedule([0.0, 0.5], [torques(0.0), torques(tau)])))
     cs.append(Case("torque spikes +-50 N.m for 0.1 s every 0.5 s", t_end=3.0,
                    schedule=_steps(3.0, 0.1, lambda t: torques(
                        (50.0 if int(round(t / 0.5)) % 2 == 0 else -50.0) if abs(t / 0.5 - round(t / 0.5)) < 1e-9
