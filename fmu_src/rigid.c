@@ -23,19 +23,6 @@ static double row_dot(const double *W, int ldw, int row, const double *x, int nq
     return s;
 }
 
-int rigid_accelerations(int nq, int nc, const double *M, const double *f, const double *W, const double *bias,
-                        const double *vc, const double *gap, const rigid_params *p,
-                        double *udot, double *lambda, int *mode, double *work, int *iwork,
-                        char *msg, size_t msg_len) {
-    double dir[2 * 64];
-    if (nc > 64) {
-        snprintf(msg, msg_len, "rigid contact: at most 64 contacts");
-        return 1;
-    }
-    return rigid_solve_modes(nq, nc, M, f, W, bias, vc, gap, p, 1, mode, dir, udot, lambda, work, iwork, msg,
-                             msg_len);
-}
-
 int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const double *W, const double *bias,
                       const double *vc, const double *gap, const rigid_params *p, int decide, int *mode,
                       double *dir, double *udot, double *lambda, double *work, int *iwork, char *msg,

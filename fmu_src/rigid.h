@@ -20,18 +20,16 @@ typedef struct {
 size_t rigid_workspace_size(int nq, int nc);   /* doubles */
 size_t rigid_iworkspace_size(int nq, int nc);  /* ints */
 
-/* Accelerations udot and contact forces lambda (per contact: Fx, Fy, Fn in the contact frame) and modes for
- * M udot = f + W' lambda under the decision tree: start from the modes the state implies (gap > gap_tol:
- * airborne; |v_t| <= v_stick: stick; else slip), solve, switch contacts with a negative normal force to airborne
- * and sticking contacts outside the friction cone to slipping (force along the sticking force), and solve
- * again; at most 4 nc + 4 rounds. Returns 0, or 1 with the reason in msg. */
-int rigid_accelerations(int nq, int nc, const double *M, const double *f, const double *W, const double *bias,
-                        const double *vc, const double *gap, const rigid_params *p,
-                        double *udot, double *lambda, int *mode, double *work, int *iwork,
-                        char *msg, size_t msg_len);
-/* One solve with the given modes and slip directions (dir: 2 per contact, the friction direction of a slipping
- * contact in the contact frame's x-y), no switching: what an integration step uses between decisions. With
- * decide != 0 this is rigid_accelerations and dir is filled in. */
+/* Accelerations udot and contact forces lambda (per contact: Fx, Fy, Fn in the contact frame) for
+ * M udot = f + W' lambda.
+ * decide != 0, the decision tree: start from the modes the state implies (gap > gap_tol: airborne;
+ * |v_t| <= v_stick: stick; else slip), solve, switch contacts with a negative normal force to airborne and
+ * sticking contacts outside the friction cone to slipping (force along the sticking force), and solve again; at
+ * most 4 nc + 4 rounds. mode and dir (2 per contact: a slipping contact's friction direction in the contact
+ * frame's x-y) are outputs.
+ * decide == 0: one solve with the given modes, no switching (what an integration step uses between decisions);
+ * a slipping contact's friction follows its current sliding direction while it slides faster than v_stick.
+ * Returns 0, or 1 with the reason in msg. */
 int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const double *W, const double *bias,
                       const double *vc, const double *gap, const rigid_params *p, int decide, int *mode,
                       double *dir, double *udot, double *lambda, double *work, int *iwork, char *msg,
