@@ -2,8 +2,6 @@
 from __future__ import annotations
 
 import shutil
-from ctypes import byref
-
 import numpy as np
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
@@ -29,11 +27,10 @@ class RoverFMU:
         self._callbacks.logger = fmi2CallbackLoggerTYPE(self._log)
         self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        try:
-            from fmpy.logging import addLoggerProxy
-            addLoggerProxy(byref(self._callbacks))
-        except Exception:     # the proxy only formats printf-style arguments; cedra passes finished messages
-            pass
+        # No fmpy.logging.addLoggerProxy here: its native proxy keeps ONE process-wide target, so pointing it at
+        # this instance's callback left every later proxied logger (fmpy's own default callbacks included)
+        # calling freed memory once this instance was gone (a segfault in the next FMU that logged). cedra's
+        # glue passes finished messages, so no printf formatting is needed.
         self.time = 0.0
 
     def _log(self, env, name, status, category, message):
