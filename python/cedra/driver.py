@@ -2,12 +2,12 @@
 from __future__ import annotations
 
 import shutil
+
 import numpy as np
 from fmpy import extract, read_model_description
-from fmpy.fmi1 import FMICallException
+from fmpy.fmi1 import FMICallException, calloc, free
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Terminated)
-from fmpy.fmi1 import calloc, free
 
 STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 

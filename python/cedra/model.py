@@ -146,7 +146,7 @@ class CedraModel:
         o, qf, qd = [], self.qf, self.rate(self.qf)
         planar = self.opt.dims == "2d"
         pose = [("x", "m"), ("y", "m"), ("z", "m"), ("yaw", "rad"), ("pitch", "rad"), ("roll", "rad")]
-        for k, (name, unit) in enumerate(pose):
+        for name, unit in pose:
             if not (planar and name in ("y", "yaw", "roll")):
                 o.append((_out(f"body.{name}", unit, f"body pose: {name} (mass center, ZYX Euler)"), qf[IDX[name]]))
         v, w = self.rover.body_velocity, self.rover.body_omega
@@ -265,12 +265,13 @@ class CedraModel:
                          q_names=list(self.q_names), z_names=["work"], params=list(self.params),
                          inputs=list(self.inputs), outputs=outs, q_start=q_start, settle_idx=self.settle_idx,
                          start_params={f"start.{n}": k for k, n in enumerate(self.q_names)},
-                         functions=self.functions(), contact=self.opt.contact,
+                         functions=dict(self._num), contact=self.opt.contact,
                          n_contacts=len(self.contacts) if self.rigid else 0, **kw)
 
     # ---------------- numeric helpers (tests, reference solutions) ----------------
     @cached_property
     def _num(self):
+        """The contract's functions, built once per model (spec() and the numeric helpers share them)."""
         return self.functions()
 
     def default_par(self, **overrides) -> np.ndarray:
