@@ -17,6 +17,7 @@
 #include "fmi2Functions.h"
 
 #include "cedra_vars.h"
+#include "heightmap.h"
 #include "model_glue.h"
 #include "solver.h"
 
@@ -76,6 +77,7 @@ typedef struct {
     double x_save[NX];
     double y_tmp[DIM(CEDRA_NY)];
     char msg[MSG_LEN];
+    heightmap terrain;              /* heightmap scenes: resources/heightmap.txt (constant: not FMU state) */
 } instance;
 
 /* ------------------------------------------------------------------------------------------------ logging */
@@ -200,16 +202,60 @@ fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn, size_t
 
 static void free_instance(instance *c) {
     fmi2CallbackFreeMemory fr = c->free;
+    heightmap_release(&c->terrain, fr);
     if (c->work) fr(c->work);
     if (c->ws) fr(c->ws);
     if (c->name) fr(c->name);
     fr(c);
 }
 
+#if CEDRA_HEIGHTMAP
+/* the local path of a file: URI (file:///p, file:/p or file://localhost/p; %XX decoded); 0, or 1 if it is not one */
+static int uri_to_path(const char *uri, char *path, size_t len) {
+    const char *p;
+    size_t k = 0;
+    if (!uri || strncmp(uri, "file:", 5) != 0) return 1;
+    p = uri + 5;
+    if (strncmp(p, "///", 3) == 0) p += 2;
+    else if (strncmp(p, "//localhost/", 12) == 0) p += 11;
+    else if (strncmp(p, "//", 2) == 0) return 1;            /* a remote host */
+    for (; *p && k + 1 < len; p++) {
+        unsigned int ch;
+        if (p[0] == '%' && p[1] && p[2] && sscanf(p + 1, "%2x", &ch) == 1) {
+            path[k++] = (char)ch;
+            p += 2;
+        } else {
+            path[k++] = *p;
+        }
+    }
+    path[k] = '\0';
+    return *p != '\0';                                        /* too long */
+}
+
+/* reads <resources>/heightmap.txt into c->terrain; 0, or 1 (logged) */
+static int read_terrain(instance *c, const char *resource_location) {
+    char dir[4096], path[4200], why[600];
+    if (uri_to_path(resource_location, dir, sizeof dir)) {
+        log_msg(c, fmi2Error, CAT_ERROR, "fmi2Instantiate: fmuResourceLocation %s is not a local file: URI "
+                "(the heightmap terrain is read from resources/heightmap.txt)",
+                resource_location ? resource_location : "(NULL)");
+        return 1;
+    }
+    size_t n = strlen(dir);
+    snprintf(path, sizeof path, "%s%sheightmap.txt", dir, n > 0 && dir[n - 1] == '/' ? "" : "/");
+    if (heightmap_read(&c->terrain, path, c->alloc, c->free, why, sizeof why)) {
+        log_msg(c, fmi2Error, CAT_ERROR, "fmi2Instantiate: %s", why);
+        return 1;
+    }
+    log_msg(c, fmi2OK, CAT_EVENTS, "fmi2Instantiate: terrain %s: %d x %d heights", path, c->terrain.nx,
+            c->terrain.ny);
+    return 0;
+}
+#endif
+
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                               fmi2Boolean visible, fmi2Boolean loggingOn) {
-    (void)fmuResourceLocation;
     (void)visible;
     if (!functions || !functions->logger) return NULL;
     instance tmp;                     /* for logging before the instance exists */
@@ -260,6 +306,15 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     }
     strcpy(c->name, instanceName);
     for (int j = 0; j < N_CATS; j++) c->log_on[j] = loggingOn != fmi2False;
+#if CEDRA_HEIGHTMAP
+    if (read_terrain(c, fmuResourceLocation)) {
+        free_instance(c);
+        return NULL;
+    }
+    model_bind_terrain(c->ws, &c->terrain);
+#else
+    (void)fmuResourceLocation;
+#endif
     set_defaults(c, 0.0);
     return (fmi2Component)c;
 }

@@ -8,6 +8,7 @@
 
 #include "cedra_model.h"
 #include "cedra_vars.h"
+#include "heightmap.h"
 #include "linalg.h"
 #include "rigid.h"
 
@@ -53,6 +54,8 @@ struct model_ws {
     int spiv[DIM(NS)];
     double ok;
     char msg[256];
+    char full_msg[600];                 /* msg and the terrain's reason */
+    heightmap *terrain;                 /* heightmap scenes: the instance's map */
     /* rigid contact (unused for compliant models) */
     double Mraw[NQ * NQ], W[3 * NC * NQ], bias[3 * NC], vc[3 * NC], gap[NC], lambda[3 * NC];
     int mode[NC], held_mode[NC], have_modes;
@@ -96,9 +99,30 @@ void model_bind(model_ws *ws, const double *inp, const double *par) {
 #endif
 }
 
-const char *model_message(const model_ws *ws) { return ws->msg; }
+void model_bind_terrain(model_ws *ws, void *terrain) { ws->terrain = (heightmap *)terrain; }
 
-void model_clear_message(model_ws *ws) { ws->msg[0] = '\0'; }
+/* the generated functions of a heightmap scene evaluate the thread's active map: this instance's */
+static void activate(model_ws *ws) {
+#if CEDRA_HEIGHTMAP
+    heightmap_activate(ws->terrain);
+#else
+    (void)ws;
+#endif
+}
+
+const char *model_message(const model_ws *ws) {
+    model_ws *w = (model_ws *)ws;
+    if (ws->terrain && ws->terrain->msg[0] && ws->msg[0]) {
+        snprintf(w->full_msg, sizeof w->full_msg, "%s: %s", ws->msg, ws->terrain->msg);
+        return ws->full_msg;
+    }
+    return ws->msg;
+}
+
+void model_clear_message(model_ws *ws) {
+    ws->msg[0] = '\0';
+    if (ws->terrain) ws->terrain->msg[0] = '\0';
+}
 
 static int all_finite(const double *v, int n) {
     for (int i = 0; i < n; i++)
@@ -107,6 +131,7 @@ static int all_finite(const double *v, int n) {
 }
 
 int model_check(model_ws *ws, const double *q, const double *u) {
+    activate(ws);
     ws->arg[0] = q;
     ws->arg[1] = u;
     ws->arg[2] = ws->inp;
@@ -214,6 +239,7 @@ static int rigid_decide(model_ws *ws, const double *x, double t) {
 int model_post_step(void *ctx, double t, double *x) {
 #if CEDRA_RIGID
     model_ws *ws = (model_ws *)ctx;
+    activate(ws);
     rigid_params p = rigid_settings(ws);
     char why[160];
     int r = 0;
@@ -241,6 +267,7 @@ int model_post_step(void *ctx, double t, double *x) {
 
 int model_rhs(void *ctx, double t, const double *x, double *xdot) {
     model_ws *ws = (model_ws *)ctx;
+    activate(ws);
     const double *q = x, *u = x + NQ;
     if (!all_finite(x, NX)) {
         snprintf(ws->msg, sizeof ws->msg, "the state is not finite at t=%.17g", t);
@@ -272,6 +299,7 @@ int model_rhs(void *ctx, double t, const double *x, double *xdot) {
 /* dF/dx = [[0, I, 0], [-M^-1 dr_dq, -M^-1 dr_du, 0], [dg_dq, dg_du, 0]] at a = udot, column-major NX x NX */
 int model_jac(void *ctx, double t, const double *x, const double *xdot, double *jac) {
     model_ws *ws = (model_ws *)ctx;
+    activate(ws);
     const double *q = x, *u = x + NQ;
 #if CEDRA_RIGID
     /* The decision tree has no symbolic Jacobian: forward differences of F (rodas4 then runs with an
@@ -323,6 +351,7 @@ int model_jac(void *ctx, double t, const double *x, const double *xdot, double *
 }
 
 int model_outputs(model_ws *ws, const double *x, double *y) {
+    activate(ws);
     if (!all_finite(x, NX)) {
         snprintf(ws->msg, sizeof ws->msg, "the state is not finite");
         return 1;
@@ -375,6 +404,7 @@ static double norm_inf(const double *v, int n) {
 }
 
 int model_settle(model_ws *ws, double *q) {
+    activate(ws);
     ws->arg[0] = q;
     ws->arg[1] = ws->inp;
     ws->arg[2] = ws->par;

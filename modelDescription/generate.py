@@ -33,7 +33,7 @@ LOG_CATEGORIES = [
     ("logAll", "everything"),
 ]
 # C files shipped in sources/ (the model's generated file last)
-SOURCE_FILES = ["fmi2_glue.c", "model_glue.c", "solver.c", "linalg.c", "rigid.c", "cedra_model.c"]
+SOURCE_FILES = ["fmi2_glue.c", "model_glue.c", "solver.c", "linalg.c", "rigid.c", "heightmap.c", "cedra_model.c"]
 
 
 def _fmt(x: float) -> str:
@@ -193,6 +193,7 @@ def vars_header(spec: ModelSpec, guid: str) -> str:
         f"#define CEDRA_NQ {nq}", f"#define CEDRA_NZ {nz}", f"#define CEDRA_NI {ni}", f"#define CEDRA_NP {npar}",
         f"#define CEDRA_NY {ny}", f"#define CEDRA_NS {ns}", "#define CEDRA_NX (2 * CEDRA_NQ + CEDRA_NZ)",
         f"#define CEDRA_RIGID {1 if spec.contact == 'rigid' else 0}", f"#define CEDRA_NC {spec.n_contacts}",
+        f"#define CEDRA_HEIGHTMAP {1 if spec.heightmap_file else 0}",
         f"#define CEDRA_NVARS {len(table)}",
         f"#define CEDRA_SOLVER_METHOD {sd['method']}", f"#define CEDRA_SOLVER_TOL {_c_real(sd['tol'])}",
         f"#define CEDRA_SOLVER_H_MAX {_c_real(sd['h_max'])}", "",

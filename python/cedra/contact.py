@@ -30,18 +30,24 @@ def rim_point(center, axle, terrain: Terrain, radius):
     t = n0 - ca.dot(n0, axle) * axle
     r1 = -unit(t)
     r2 = ca.cross(axle, r1)
-    beta = ca.SX.sym("beta")
-    p = center + radius * (ca.cos(beta) * r1 + ca.sin(beta) * r2)
+
+    def rim(b):
+        return center + radius * (ca.cos(b) * r1 + ca.sin(b) * r2)
+
     if terrain.planar:
-        return ca.substitute(p, beta, 0)     # exact on a plane: the deepest point is along -t
-    g = terrain.height(p[0], p[1]) - p[2]
-    dg = ca.jacobian(g, beta)
-    ddg = ca.jacobian(dg, beta)
-    gdd = ca.vertcat(g, dg, ddg)
+        return rim(0)                      # exact on a plane: the deepest point is along -t
 
     def gfun(b):
-        v = ca.substitute(gdd, beta, b)
-        return v[0], v[1], v[2]
+        """g(beta) = f(p_X, p_Y) - p_Z and its first two beta-derivatives, by the chain rule on the terrain's
+        own gradient and Hessian (p' = R_w (-sin b r1 + cos b r2), p'' = -(p - c))."""
+        p = rim(b)
+        dp = radius * (-ca.sin(b) * r1 + ca.cos(b) * r2)
+        ddp = center - p
+        h, grad, hess = terrain.local(p[0], p[1])
+        d1 = ca.dot(grad, dp[0:2]) - dp[2]
+        d2 = ca.dot(dp[0:2], hess @ dp[0:2]) + ca.dot(grad, ddp[0:2]) - ddp[2]
+        return h - p[2], d1, d2
+
     best_b, best_g = 0, gfun(0)[0]
     for k in range(-6, 7):
         if k == 0:
@@ -54,7 +60,7 @@ def rim_point(center, axle, terrain: Terrain, radius):
     for _ in range(N_NEWTON):
         _, d1, d2 = gfun(b)
         b = ca.if_else(d2 < 0, b - d1 / ca.if_else(d2 < 0, d2, -1), b)   # never step toward a minimum
-    return ca.substitute(p, beta, b)
+    return rim(b)
 
 
 def contact_geometry(center, axle, terrain: Terrain, radius) -> ContactGeometry:

@@ -17,6 +17,7 @@ import zipfile
 from pathlib import Path
 
 from .codegen import GENERATED_CFLAGS_RELAX, generate_c
+from .heightmap import RESOURCE_NAME
 from .spec import ModelSpec
 from .variables import variables
 
@@ -25,8 +26,8 @@ FMU_SRC = REPO_ROOT / "fmu_src"
 CC = "gcc"
 CFLAGS = ["-std=c99", "-O2", "-fPIC", "-Wall", "-Wextra", "-Werror", "-fvisibility=hidden"]
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-HAND_WRITTEN_C = ("fmi2_glue.c", "model_glue.c", "solver.c", "linalg.c", "rigid.c")
-HAND_WRITTEN_H = ("cedra_var.h", "model_glue.h", "solver.h", "linalg.h", "rigid.h")
+HAND_WRITTEN_C = ("fmi2_glue.c", "model_glue.c", "solver.c", "linalg.c", "rigid.c", "heightmap.c")
+HAND_WRITTEN_H = ("cedra_var.h", "model_glue.h", "solver.h", "linalg.h", "rigid.h", "heightmap.h")
 
 # the functions a Co-Simulation FMU exports: exactly these (nm -D)
 FMI2_CS_FUNCTIONS = frozenset("""
@@ -145,4 +146,6 @@ def build_fmu(spec: ModelSpec, build_dir) -> Path:
             if p.suffix in (".c", ".h"):
                 z.write(p, f"sources/{p.name}")
         z.write(doc, "documentation/index.html")
+        if spec.heightmap_file:
+            z.write(spec.heightmap_file, f"resources/{RESOURCE_NAME}")
     return fmu

@@ -44,9 +44,12 @@ class KaneSystem:
     def add_generalized_force(self, q_force):
         self.generalized_forces = q_force if self.generalized_forces is None else self.generalized_forces + q_force
 
-    def add_point_force(self, point_velocity, force):
-        """A force applied at a material point whose velocity (linear in u) is given."""
-        self.point_forces.append((point_velocity, force))
+    def add_point_force(self, point_velocity, force, partial_velocities=None):
+        """A force applied at a material point whose velocity (linear in u) is given. partial_velocities: d v/d u
+        when the caller has it (default: the Jacobian of point_velocity)."""
+        if partial_velocities is None:
+            partial_velocities = ca.jacobian(point_velocity, self.u)
+        self.point_forces.append((partial_velocities, force))
 
     def add_torque(self, omega, torque):
         """A torque on a body with angular velocity omega (linear in u)."""
@@ -70,8 +73,8 @@ class KaneSystem:
                 alpha0 = ca.jtimes(b.omega, self.q, self.u)
                 M += Jw.T @ I @ Jw
                 f -= Jw.T @ (I @ alpha0 + ca.cross(b.omega, I @ b.omega))
-        for v_point, force in self.point_forces:
-            f += ca.jacobian(v_point, self.u).T @ force
+        for partials, force in self.point_forces:
+            f += partials.T @ force
         return M, f
 
     def kinetic_energy(self):

@@ -34,6 +34,7 @@ class ModelOptions:
     steering: bool = False
     contact: str = "compliant"
     locked_wheels: bool = False   # wheels welded to their carriers (a parking brake): no spin coordinates
+    heightmap: str = ""           # terrain "heightmap": the grid file (shipped as the FMU's resources/heightmap.txt)
 
 
 def coordinate_map(opt: ModelOptions) -> dict[str, str | None]:
@@ -106,7 +107,7 @@ class CedraModel:
         tau = [i_.get(f"tau[{k}]", 0) for k in range(1, 7)]
         steer = (i_["steer[1]"], i_["steer[2]"]) if opt.steering else None
         self.rover = describe(self.qf, self.rate, p, tau, steer)
-        self.terrain = Terrain(opt.terrain, {n: i_[n] for n in KINDS[opt.terrain].inputs})
+        self.terrain = Terrain(opt.terrain, {n: i_[n] for n in KINDS[opt.terrain].inputs}, opt.heightmap)
         self.kane = KaneSystem(self.q, self.u, list(self.rover.bodies))
         self.kane.add_generalized_force(ca.jacobian(self.rate(self.qf), self.u).T @ self.rover.coordinate_torques)
         for b in self.rover.bodies:                                  # gravity: -m g Z at each mass center
@@ -115,6 +116,11 @@ class CedraModel:
         for wh in self.rover.wheels:
             geo = contact_geometry(wh.center, wh.axle, self.terrain, p["R_w"])
             v_point = wh.velocity + ca.cross(wh.omega, geo.point - wh.center)
+            # partial velocities at a free point, then the contact point put in: no differentiation through the
+            # contact search (the heightmap terrain's derivative chain is finite, see terrain.Terrain)
+            at = ca.SX.sym("p_contact", 3)
+            partials = ca.substitute(ca.jacobian(wh.velocity + ca.cross(wh.omega, at - wh.center), self.u), at,
+                                     geo.point)
             vc = geo.frame.T @ v_point                      # contact-frame components (x, y, n)
             if self.rigid:   # forces come from the glue's constrained solve; 0 placeholders in the outputs
                 self.contacts.append(dict(geo=geo, Fn=0, Fx=0, Fy=0, slip=ca.norm_2(vc[0:2]), flag=geo.depth >= 0,
@@ -122,7 +128,7 @@ class CedraModel:
                 continue
             force, Fn, Fx, Fy, slip, flag = compliant_force(geo, v_point, p["ground_k"], p["ground_d"], i_["mu"],
                                                             p["v_eps"])
-            self.kane.add_point_force(v_point, force)
+            self.kane.add_point_force(v_point, force, partials)
             self.contacts.append(dict(geo=geo, Fn=Fn, Fx=Fx, Fy=Fy, slip=slip, flag=flag, force=force,
                                       v_point=v_point, vc=vc))
         self.M, self.f = self.kane.equations()
@@ -266,7 +272,8 @@ class CedraModel:
                          inputs=list(self.inputs), outputs=outs, q_start=q_start, settle_idx=self.settle_idx,
                          start_params={f"start.{n}": k for k, n in enumerate(self.q_names)},
                          functions=dict(self._num), contact=self.opt.contact,
-                         n_contacts=len(self.contacts) if self.rigid else 0, **kw)
+                         n_contacts=len(self.contacts) if self.rigid else 0, heightmap_file=self.opt.heightmap,
+                         **kw)
 
     # ---------------- numeric helpers (tests, reference solutions) ----------------
     @cached_property

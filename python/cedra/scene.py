@@ -4,7 +4,9 @@ before any code is generated.
     name = "bump2d"                 # FMU model identifier: letters, digits, underscore
     description = "..."
     dims = "2d"                     # "2d" (planar, 9 DOF) or "3d" (17 DOF, 15 without steering)
-    terrain = "bump"                # flat | slope | bump | bump3d | step | waves
+    terrain = "bump"                # flat | slope | bump | bump3d | step | waves | heightmap
+    heightmap = "hills.txt"         # terrain "heightmap" only: the grid file (format: fmu_src/heightmap.h), relative
+                                    # to the scene file; shipped in the FMU as resources/heightmap.txt
     contact = "compliant"           # compliant (rigid: not built yet)
     steering = false                # 3d only: steering servo on wheels 5 and 6
     locked_wheels = false           # wheels welded to their carriers (a parking brake; no torque inputs)
@@ -27,13 +29,14 @@ from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 
+from . import heightmap
 from .model import CedraModel, ModelOptions, input_table, param_table, projection
 from .spec import ModelSpec
 from .terrain import KINDS
 
 SOLVERS = {"rk4": 0, "dopri5": 1, "rodas4": 2}
-TOP_KEYS = {"name", "description", "dims", "terrain", "contact", "steering", "locked_wheels", "stop_time",
-            "output_interval",
+TOP_KEYS = {"name", "description", "dims", "terrain", "heightmap", "contact", "steering", "locked_wheels",
+            "stop_time", "output_interval",
             "solver", "parameters", "inputs", "start"}
 
 
@@ -100,6 +103,27 @@ def _table(path, data, key):
     return t
 
 
+def _heightmap_file(path, data, terrain) -> str:
+    """The absolute path of a heightmap scene's grid, read once here (the FMU's own C reader) so that a bad file
+    fails before any code is generated."""
+    if terrain != "heightmap":
+        if "heightmap" in data:
+            _fail(path, "heightmap", f"only for terrain = 'heightmap' (this scene's terrain is '{terrain}')")
+        return ""
+    if "heightmap" not in data:
+        _fail(path, "heightmap", "missing: terrain 'heightmap' needs its grid file")
+    name = data["heightmap"]
+    if not isinstance(name, str) or not name:
+        _fail(path, "heightmap", f"expected a file name, got {name!r}")
+    base = Path(path).parent if path != "<scene>" else Path.cwd()
+    file = (base / name).resolve()
+    try:
+        heightmap.load(file)
+    except heightmap.HeightmapError as e:
+        _fail(path, "heightmap", str(e))
+    return str(file)
+
+
 def parse(data: dict, path: str = "<scene>") -> Scene:
     for key in data:
         if key not in TOP_KEYS:
@@ -111,12 +135,10 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
         _fail(path, "name", f"must be an identifier (letters, digits, underscore), got {name!r}")
     dims = _choice(path, "dims", data["dims"], {"2d", "3d"})
-    terrain = data["terrain"]
-    if terrain == "heightmap":
-        _fail(path, "terrain", "'heightmap' is not supported yet (see README, open work)")
-    terrain = _choice(path, "terrain", terrain, set(KINDS))
-    if dims == "2d" and terrain in ("bump3d", "waves"):
+    terrain = _choice(path, "terrain", data["terrain"], set(KINDS))
+    if dims == "2d" and terrain in ("bump3d", "waves", "heightmap"):
         _fail(path, "terrain", f"'{terrain}' varies along Y and needs dims = '3d'")
+    heightmap_file = _heightmap_file(path, data, terrain)
     contact = _choice(path, "contact", data.get("contact", "compliant"), {"compliant", "rigid"})
     steering = data.get("steering", False)
     if not isinstance(steering, bool):
@@ -145,7 +167,8 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
         else:
             _fail(path, k, "unknown key (known: method, tol, h_max)")
 
-    opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked)
+    opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked,
+                       heightmap=heightmap_file)
     scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path))
     for section, table in (("parameters", param_table(opt)), ("inputs", input_table(opt))):
         known = {q.name: q for q in table}

@@ -85,6 +85,9 @@ class ModelSpec:
     solver: dict = field(default_factory=dict)   # default solver settings: method, tol, h_max
     contact: str = "compliant"              # "rigid": cedra_contact exists and the glue solves the contact forces
     n_contacts: int = 0                     # rigid: number of contacts (wheels), in wheel order 1..n
+    heightmap_file: str = ""                # terrain "heightmap": the grid file, shipped as resources/heightmap.txt;
+    #                                         the generated functions call the external cedra_heightmap (its C
+    #                                         implementation is fmu_src/heightmap.c)
 
     @property
     def nq(self) -> int:

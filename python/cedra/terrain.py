@@ -53,31 +53,49 @@ KINDS = {
     "bump3d": TerrainKind("bump3d", ("terrain_h", "terrain_w", "terrain_x0", "terrain_y0"), _bump3d, False),
     "step": TerrainKind("step", ("terrain_h", "terrain_x0", "terrain_s"), _step, False),
     "waves": TerrainKind("waves", ("terrain_h", "terrain_w"), _waves, False),
+    # a grid shipped in the FMU's resources (cedra.heightmap): the height is an external function, no inputs
+    "heightmap": TerrainKind("heightmap", (), None, False),
 }
-# "heightmap" (a grid in the FMU's resources) is named by the spec but not built yet: scene.py refuses it.
 
 
 class Terrain:
-    """A terrain kind bound to its symbolic inputs: height, gradient and unit normal."""
+    """A terrain kind bound to its symbolic inputs: height, gradient, Hessian and unit normal.
 
-    def __init__(self, kind: str, inputs: dict[str, ca.SX]):
+    Derivatives are outputs of one function, never taken by differentiating the terrain inside the model: the
+    heightmap is an external C function (cedra.heightmap) whose derivative chain is finite, so the model uses
+    h, gradient and Hessian explicitly (one level of symbolic differentiation of the model remains possible)."""
+
+    def __init__(self, kind: str, inputs: dict[str, ca.SX], heightmap_file: str = ""):
+        """heightmap_file: the grid of kind "heightmap"; it is loaded as the process's active map."""
         self.kind = KINDS[kind]
         self.inputs = inputs
         X, Y = ca.SX.sym("X"), ca.SX.sym("Y")
         t = [inputs[n] for n in self.kind.inputs]
-        h = self.kind.height(X, Y, inputs)
-        grad = ca.gradient(h, ca.vertcat(X, Y))
-        self._f = ca.Function("terrain", [X, Y] + t, [h, grad])
+        if kind == "heightmap":
+            from . import heightmap
+            if not heightmap_file:
+                raise ValueError("terrain 'heightmap' needs its heightmap file")
+            heightmap.load(heightmap_file)
+            h, grad, hess = heightmap.external()(ca.vertcat(X, Y))
+        else:
+            h = self.kind.height(X, Y, inputs)
+            grad = ca.gradient(h, ca.vertcat(X, Y))
+            hess = ca.jacobian(grad, ca.vertcat(X, Y))
+        self._f = ca.Function("terrain", [X, Y] + t, [h, grad, hess])
         self._t = t
 
     @property
     def planar(self):
         return self.kind.planar
 
+    def local(self, X, Y):
+        """(h, gradient [h_X, h_Y], Hessian 2x2) at (X, Y)."""
+        return self._f(X, Y, *self._t)
+
     def height(self, X, Y):
-        return self._f(X, Y, *self._t)[0]
+        return self.local(X, Y)[0]
 
     def normal(self, X, Y):
-        g = self._f(X, Y, *self._t)[1]
+        g = self.local(X, Y)[1]
         n = ca.vertcat(-g[0], -g[1], 1)
         return n / ca.norm_2(n)

@@ -1,0 +1,75 @@
+"""The rolling hills of the shipped scene hills3d (terrain = "heightmap"): how its grid file was made, and a
+drive across it through the FMU.
+
+    python examples/hills.py            # rewrites python/cedra/scenes/hills3d.txt, then drives (prints a summary)
+
+tests/test_heightmap.py checks that the shipped grid is exactly what heights() gives, and runs drive().
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+GRID = dict(x0=-1.0, y0=-1.0, dx=0.05, dy=0.05, nx=81, ny=41)     # X in [-1, 3] m, Y in [-1, 1] m
+# (X, Y, height, width) of each hill, m: low and broad enough for 0.065 m wheels; the start area (X < 0.4) is flat
+HILLS = [(0.9, 0.15, 0.05, 0.25), (1.5, -0.25, 0.06, 0.3), (2.1, 0.3, 0.04, 0.2), (2.5, -0.1, 0.05, 0.35)]
+SHIPPED = Path(__file__).resolve().parents[1] / "python" / "cedra" / "scenes" / "hills3d.txt"
+
+
+def heights(X, Y):
+    Z = np.zeros(np.broadcast(X, Y).shape)
+    for x, y, h, w in HILLS:
+        Z += h * np.exp(-((X - x) ** 2 + (Y - y) ** 2) / w ** 2)
+    return Z
+
+
+def grid():
+    g = GRID
+    X = g["x0"] + g["dx"] * np.arange(g["nx"])
+    Y = g["y0"] + g["dy"] * np.arange(g["ny"])
+    return X, Y, heights(X[None, :], Y[:, None])
+
+
+def write_heightmap(path=SHIPPED) -> Path:
+    from cedra import heightmap
+    _, _, Z = grid()
+    return heightmap.write(path, np.round(Z, 9), GRID["x0"], GRID["y0"], GRID["dx"], GRID["dy"],
+                           "cedra scene hills3d: rolling hills, made by examples/hills.py")
+
+
+def drive(build_dir="build", stop_time=None):
+    """Run the shipped hills3d FMU under the main job's speed controller (cedra.simulate.SpeedController, the same
+    torque on every wheel); returns (names, rows) with rows [t, outputs...] every output interval."""
+    from cedra import scene as scn
+    from cedra.driver import RoverFMU
+    from cedra.fmu import build_fmu
+    from cedra.simulate import SAMPLE, SpeedController
+    sc = scn.load_shipped("hills3d")
+    fmu = Path(build_dir) / "hills3d.fmu"
+    if not fmu.exists():
+        fmu = build_fmu(sc.spec(), build_dir)
+    names = [f"body.{n}" for n in ("x", "y", "z", "yaw", "pitch", "roll", "vx")] + \
+        [f"wheel[{k}].Fn" for k in range(1, 7)] + ["energy.kinetic"]
+    ctrl = SpeedController()
+    rows = []
+    r = RoverFMU(fmu)
+    try:
+        r.start()
+        for k in range(1, int(round((stop_time or sc.stop_time) / SAMPLE)) + 1):
+            tau = ctrl(r.get(["body.vx"])[0])
+            r.set({f"tau[{i}]": tau for i in range(1, 7)})
+            if not r.step(k * SAMPLE):
+                raise RuntimeError(f"hills3d stopped at t={r.time}: " + "; ".join(r.messages[-3:]))
+            rows.append(np.concatenate([[r.time], r.get(names)]))
+    finally:
+        r.close()
+    return names, np.array(rows)
+
+
+if __name__ == "__main__":
+    print(write_heightmap())
+    names, rows = drive(stop_time=float(sys.argv[1]) if len(sys.argv) > 1 else None)
+    last = dict(zip(["t"] + names, rows[-1]))
+    print(", ".join(f"{k}={v:.4g}" for k, v in last.items()))

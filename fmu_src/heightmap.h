@@ -1,0 +1,40 @@
+/* The heightmap terrain (spec section 5, kind "heightmap"): a grid of heights read from a text file and
+ * interpolated by the natural bicubic spline (C2; plane data gives the plane exactly). The generated model calls
+ * the terrain as CasADi external functions (cedra_heightmap and its Jacobians, up to third derivatives), which
+ * read the heightmap made active for the calling thread: the glue activates its instance's map before every
+ * model evaluation, so instances never share terrain data.
+ *
+ * File format (text; '#' starts a comment):
+ *     cedra-heightmap 1
+ *     nx ny x0 y0 dx dy            grid size (>= 2 each), the first node's X, Y (m), the spacings (m, > 0)
+ *     z z z ...                    ny rows of nx heights (m): row j holds Y = y0 + j dy, X = x0 .. x0 + (nx-1) dx
+ * The terrain is defined on [x0, x0 + (nx-1) dx] x [y0, y0 + (ny-1) dy]; evaluating outside fails (the model
+ * reports the point) rather than inventing ground. */
+#ifndef CEDRA_HEIGHTMAP_H
+#define CEDRA_HEIGHTMAP_H
+
+#include <stddef.h>
+
+typedef struct {
+    int nx, ny;
+    double x0, y0, dx, dy;
+    double *coef;           /* (nx + 2) * (ny + 2) B-spline coefficients, X fastest */
+    char msg[256];          /* why the last evaluation failed (a point outside the grid) */
+} heightmap;
+
+typedef void *(*heightmap_alloc)(size_t n, size_t size);
+typedef void (*heightmap_free_fn)(void *p);
+
+/* reads and fits path into hm; 0, or 1 with the reason in msg (file, line, what) */
+int heightmap_read(heightmap *hm, const char *path, heightmap_alloc alloc, heightmap_free_fn fr, char *msg,
+                   size_t msg_len);
+void heightmap_release(heightmap *hm, heightmap_free_fn fr);
+
+/* the map the external functions evaluate in this thread (NULL: they fail) */
+void heightmap_activate(heightmap *hm);
+
+/* height and derivatives at (X, Y): d1 = [h_X, h_Y], d2 = [h_XX, h_YX, h_XY, h_YY] (column-major Hessian),
+ * d3 = d vec(Hessian) / d[X, Y] (4 x 2 column-major); any of them may be NULL. 0, or 1 outside the grid. */
+int heightmap_eval(const heightmap *hm, double X, double Y, double *h, double *d1, double *d2, double *d3);
+
+#endif

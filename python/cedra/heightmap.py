@@ -1,0 +1,94 @@
+"""The heightmap terrain on the Python side: writing heightmap files, and the terrain's CasADi external functions.
+
+One implementation only: the file reader, the natural bicubic spline and its derivatives are C
+(fmu_src/heightmap.c, format in heightmap.h). The FMU compiles that file and reads resources/heightmap.txt at
+fmi2Instantiate; here the same file is compiled into a small host library so that the symbolic model can call the
+terrain (CasADi external functions, with Jacobians to third order for the rim search and the implicit solver's
+Jacobian), tests can evaluate it, and a scene's heightmap is validated before any code is generated.
+
+The host library holds ONE process-wide map (the last one loaded), active in the thread that loaded it: the
+Python-side model functions of a heightmap scene evaluate whichever map was loaded last.
+"""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import subprocess
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+SOURCE = REPO_ROOT / "fmu_src" / "heightmap.c"
+HOST_DIR = REPO_ROOT / "build" / "host"
+EXTERNAL_NAME = "cedra_heightmap"
+RESOURCE_NAME = "heightmap.txt"      # the file's name inside the FMU's resources/
+
+
+class HeightmapError(ValueError):
+    pass
+
+
+def write(path, Z, x0: float, y0: float, dx: float, dy: float, comment: str = "") -> Path:
+    """Write heights Z[j, i] (row j: Y = y0 + j dy; column i: X = x0 + i dx) in the heightmap format."""
+    Z = np.asarray(Z, dtype=float)
+    if Z.ndim != 2 or min(Z.shape) < 2 or not np.all(np.isfinite(Z)) or dx <= 0 or dy <= 0:
+        raise HeightmapError(f"{path}: need a finite 2-D grid of at least 2 x 2 heights and spacings > 0")
+    ny, nx = Z.shape
+    lines = [f"# {ln}" for ln in comment.splitlines()] + [
+        "cedra-heightmap 1", f"{nx} {ny} {x0!r} {y0!r} {dx!r} {dy!r}"]
+    lines += [" ".join(repr(float(v)) for v in row) for row in Z]
+    path = Path(path)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@lru_cache(maxsize=None)
+def host_library() -> Path:
+    """fmu_src/heightmap.c compiled for this process (cached by the source's hash under build/host/)."""
+    src = SOURCE.read_bytes()
+    lib = HOST_DIR / f"libcedra_heightmap_{hashlib.sha256(src).hexdigest()[:16]}.so"
+    if not lib.exists():
+        HOST_DIR.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(suffix=".so", dir=HOST_DIR)     # parallel test workers: build, then rename
+        os.close(fd)
+        cmd = ["gcc", "-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror", "-DCEDRA_HEIGHTMAP_HOST",
+               str(SOURCE), "-o", tmp, "-lm"]
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            os.unlink(tmp)
+            raise HeightmapError(f"compiling {SOURCE} failed:\n{r.stderr}")
+        os.replace(tmp, lib)
+    return lib
+
+
+@lru_cache(maxsize=None)
+def _ctypes_lib() -> ctypes.CDLL:
+    lib = ctypes.CDLL(str(host_library()))
+    lib.cedra_heightmap_host_load.argtypes = [ctypes.c_char_p]
+    lib.cedra_heightmap_host_load.restype = ctypes.c_int
+    lib.cedra_heightmap_host_message.restype = ctypes.c_char_p
+    return lib
+
+
+def load(path) -> None:
+    """Read and fit the heightmap file (the C reader the FMU uses) and make it the active map of this thread;
+    HeightmapError names the file, the line and the reason."""
+    lib = _ctypes_lib()
+    if lib.cedra_heightmap_host_load(str(Path(path)).encode()):
+        raise HeightmapError(lib.cedra_heightmap_host_message().decode())
+
+
+def last_message() -> str:
+    """Why the last evaluation of the active map failed (a point outside the grid), or ''."""
+    return _ctypes_lib().cedra_heightmap_host_message().decode()
+
+
+def external() -> ca.Function:
+    """cedra_heightmap: (x[2] = [X, Y]) -> h, an external CasADi function on the active map (see load)."""
+    _ctypes_lib()           # the same shared object: CasADi's dlopen returns the handle ctypes holds
+    return ca.external(EXTERNAL_NAME, str(host_library()))
