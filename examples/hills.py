@@ -12,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-GRID = dict(x0=-1.0, y0=-1.0, dx=0.05, dy=0.05, nx=81, ny=41)     # X in [-1, 3] m, Y in [-1, 1] m
-# (X, Y, height, width) of each hill, m: low and broad enough for 0.065 m wheels; the start area (X < 0.4) is flat
-HILLS = [(0.9, 0.15, 0.05, 0.25), (1.5, -0.25, 0.06, 0.3), (2.1, 0.3, 0.04, 0.2), (2.5, -0.1, 0.05, 0.35)]
+GRID = dict(x0=-1.0, y0=-1.0, dx=0.05, dy=0.05, nx=101, ny=41)    # X in [-1, 4] m, Y in [-1, 1] m
+# (X, Y, height, width) of each hill, m: low and broad enough for 0.065 m wheels; under the start pose (wheels at
+# X = -0.3 .. 0.3) the hills add less than 1e-8 m, so the start is the flat ground's
+HILLS = [(1.3, 0.15, 0.05, 0.25), (1.9, -0.25, 0.06, 0.3), (2.5, 0.3, 0.04, 0.2), (3.0, -0.1, 0.05, 0.3)]
 SHIPPED = Path(__file__).resolve().parents[1] / "python" / "cedra" / "scenes" / "hills3d.txt"
 
 

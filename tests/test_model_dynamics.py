@@ -352,7 +352,7 @@ def test_symmetric_run_stays_symmetric(b3):
 # ---------------------------------------------------------------- sizes (printed with -s)
 def test_function_sizes():
     from cedra.scene import load_shipped
-    for scene in ("bump2d", "flat3d"):
+    for scene in ("bump2d", "flat3d", "slope3d", "hills3d"):
         opt = load_shipped(scene).options
         t0 = time.perf_counter()
         fns = CedraModel(opt).functions()

@@ -40,7 +40,7 @@ def write(path, Z, x0: float, y0: float, dx: float, dy: float, comment: str = ""
         raise HeightmapError(f"{path}: need a finite 2-D grid of at least 2 x 2 heights and spacings > 0")
     ny, nx = Z.shape
     lines = [f"# {ln}" for ln in comment.splitlines()] + [
-        "cedra-heightmap 1", f"{nx} {ny} {x0!r} {y0!r} {dx!r} {dy!r}"]
+        "cedra-heightmap 1", " ".join([str(nx), str(ny)] + [repr(float(v)) for v in (x0, y0, dx, dy)])]
     lines += [" ".join(repr(float(v)) for v in row) for row in Z]
     path = Path(path)
     path.write_text("\n".join(lines) + "\n")

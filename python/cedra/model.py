@@ -241,8 +241,8 @@ class CedraModel:
         return ca.if_else(ca.fabs(self.rover.closure) >= 1, -1, ca.if_else(tilt > 80 * ca.pi / 180, -2, 1))
 
     def guess(self):
-        """A pose in light contact with the terrain under (x, y) for the settle Newton: body level with the
-        terrain's slope under it, bogies and fork at their design angles, 1 mm into the ground."""
+        """A pose in contact with the terrain under (x, y) for the settle Newton: body level with the terrain's
+        slope under it, bogies and fork at their design angles, every wheel at least 1 mm into the ground."""
         q, p, names = self.q, self.p, self.q_names
         x = q[names.index("x")]
         y = q[names.index("y")] if "y" in names else 0
@@ -256,7 +256,14 @@ class CedraModel:
         height = (p["R_w"] - p["rear_z"]) / ca.cos(pitch) / ca.cos(roll)
         values = {"z": h + height - 1e-3, "pitch": pitch, "roll": roll, "theta1": 0, "theta2": 0,
                   "theta4": p["fork_theta4_ref"]}
-        return ca.vertcat(*[values[nm] if nm in values else q[k] for k, nm in enumerate(names)])
+        level = ca.vertcat(*[values[nm] if nm in values else q[k] for k, nm in enumerate(names)])
+        if self.terrain.planar:
+            return level
+        # on curved ground some wheels of the level pose hang in the air, where the equilibrium Jacobian has no
+        # stiffness (singular): lower the pose until the highest wheel is 1 mm into the ground too
+        depths = ca.substitute(ca.vertcat(*[c["geo"].depth for c in self.contacts]), q, level)
+        lower = ca.fmax(0, 1e-3 - ca.mmin(depths))
+        return ca.vertcat(*[level[k] - lower if nm == "z" else level[k] for k, nm in enumerate(names)])
 
     def spec(self, name: str, description: str = "", **kw) -> ModelSpec:
         outs = [qq for qq, _ in self.outputs()] + [

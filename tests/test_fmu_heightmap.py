@@ -1,0 +1,134 @@
+"""The heightmap scene's FMU (hills3d): it reads its grid from resources/ per instance, agrees with the analytic
+flat ground where the grid is flat, drives across the hills, and fails loudly without its grid or off it.
+
+Uses build/hills3d.fmu and build/flat3d.fmu when `./build.sh` has built them (CI does), else builds them."""
+from __future__ import annotations
+
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cedra.driver import RoverFMU
+from cedra.fmu import build_fmu
+from cedra.scene import load_shipped
+from cedra.simulate import SpeedController
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "examples"))
+import hills  # noqa: E402
+
+FN = [f"wheel[{k}].Fn" for k in range(1, 7)]
+
+
+def fmu_of(name, tmp_path_factory):
+    built = REPO / "build" / f"{name}.fmu"
+    return built if built.exists() else build_fmu(load_shipped(name).spec(), tmp_path_factory.mktemp(name))
+
+
+@pytest.fixture(scope="module")
+def hills_fmu(tmp_path_factory):
+    return fmu_of("hills3d", tmp_path_factory)
+
+
+def with_resource(fmu, out, text):
+    """A copy of fmu with resources/heightmap.txt replaced by text (None: removed)."""
+    with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as dst:
+        for item in src.infolist():
+            if item.filename != "resources/heightmap.txt":
+                dst.writestr(item, src.read(item.filename))
+        if text is not None:
+            dst.writestr("resources/heightmap.txt", text)
+    return out
+
+
+def raised_map(fmu, out, dz):
+    """The hills FMU with every grid height raised by dz."""
+    X, Y, Z = hills.grid()
+    from cedra import heightmap
+    tmp = heightmap.write(out.with_suffix(".txt"), Z + dz, X[0], Y[0], hills.GRID["dx"], hills.GRID["dy"])
+    return with_resource(fmu, out, tmp.read_text())
+
+
+def test_settled_start_equals_the_analytic_flat_ground(hills_fmu, tmp_path_factory):
+    """Under the start pose the hills grid is flat (the nearest hill adds < 1e-8 m): pose and wheel loads after the
+    settle equal those of flat3d (same rover, analytic flat terrain)."""
+    names = ["body.z", "body.pitch", "body.roll"] + FN
+    out = {}
+    for name, path in (("hills", hills_fmu), ("flat", fmu_of("flat3d", tmp_path_factory))):
+        f = RoverFMU(path)
+        f.start()
+        out[name] = f.get(names)
+        f.close()
+    assert np.sum(out["flat"][3:]) > 200
+    assert np.max(np.abs(out["hills"][:3] - out["flat"][:3])) < 1e-6
+    assert np.max(np.abs(out["hills"][3:] - out["flat"][3:])) < 1e-4 * np.sum(out["flat"][3:])
+
+
+def test_drives_across_the_hills():
+    names, rows = hills.drive(stop_time=6.0)
+    col = {n: rows[:, k + 1] for k, n in enumerate(names)}
+    assert np.all(np.isfinite(rows))
+    assert col["body.x"][-1] > 1.1                          # the front wheels past the first hill's crest
+    assert np.max(np.abs(col["body.roll"])) > 0.02          # the hills are not symmetric about the track
+    assert np.all(np.array([col[n] for n in FN]) >= 0)
+
+
+def test_each_instance_reads_its_own_grid(hills_fmu, tmp_path):
+    """Two instances in one process, the second on the same hills raised by 0.1 m, stepped in turn: the second
+    runs 0.1 m higher and otherwise identically (each evaluation uses its own instance's map)."""
+    raised = raised_map(hills_fmu, tmp_path / "raised.fmu", 0.1)
+    a, b = RoverFMU(hills_fmu, "a"), RoverFMU(raised, "b")
+    ctrl_a, ctrl_b = SpeedController(), SpeedController()
+    try:
+        a.start(start_time=0.0)
+        b.start(start_time=0.0)
+        for k in range(1, 301):
+            for f, c in ((a, ctrl_a), (b, ctrl_b)):
+                tau = c(f.get(["body.vx"])[0])
+                f.set({f"tau[{i}]": tau for i in range(1, 7)})
+                assert f.step(k * 0.01), f.messages
+        ya, yb = a.get(["body.x", "body.z", "body.roll"]), b.get(["body.x", "body.z", "body.roll"])
+    finally:
+        a.close()
+        b.close()
+    assert ya[0] > 0.5
+    assert abs(yb[1] - ya[1] - 0.1) < 1e-6
+    assert abs(yb[0] - ya[0]) < 1e-6 and abs(yb[2] - ya[2]) < 1e-6
+
+
+def test_missing_grid_fails_at_instantiate(hills_fmu, tmp_path):
+    f = RoverFMU(with_resource(hills_fmu, tmp_path / "nogrid.fmu", None))
+    with pytest.raises(Exception):
+        f.start()
+    assert any("cannot open the heightmap" in m and "heightmap.txt" in m for m in f.messages), f.messages
+
+
+def test_bad_grid_fails_at_instantiate(hills_fmu, tmp_path):
+    f = RoverFMU(with_resource(hills_fmu, tmp_path / "bad.fmu", "cedra-heightmap 1\n3 2 0 0 1 1\n0 0 0\n0 0\n"))
+    with pytest.raises(Exception):
+        f.start()
+    assert any("height 6 of 6 (row 1) is missing" in m for m in f.messages), f.messages
+
+
+def test_start_off_the_grid_is_refused(hills_fmu):
+    f = RoverFMU(hills_fmu)
+    with pytest.raises(Exception):
+        f.start({"start.x": 3.9})
+    f.close()
+    assert any("outside the heightmap" in m for m in f.messages), f.messages
+
+
+def test_driving_off_the_grid_is_a_discard_naming_the_point(hills_fmu, tmp_path):
+    """On a flat grid that ends at X = 1 m, full torque drives the front wheels over the edge within 4 s."""
+    from cedra import heightmap
+    grid = heightmap.write(tmp_path / "short.txt", np.zeros((41, 41)), -1.0, -1.0, 0.05, 0.05).read_text()
+    f = RoverFMU(with_resource(hills_fmu, tmp_path / "short.fmu", grid))
+    f.start({f"tau[{i}]": 1.0 for i in range(1, 7)})
+    ok = all(f.step(k * 0.05) for k in range(1, 81))
+    terminated = f.terminated()
+    f.close()
+    assert not ok and f.status == "discard" and terminated
+    assert any("outside the heightmap [-1, 1] x [-1, 1] m" in m for m in f.messages), f.messages
