@@ -243,7 +243,7 @@ int model_post_step(void *ctx, double t, double *x) {
     rigid_params p = rigid_settings(ws);
     char why[160];
     int r = 0;
-    for (int it = 0; it < 8; it++) {     /* Gauss-Newton on the gaps: stop when no contact penetrates */
+    for (int it = 0; it < 30; it++) {    /* Gauss-Newton on the gaps: stop when no contact penetrates */
         if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
         int rk = rigid_project(NQ, NC, x, x + NQ, ws->Mraw, ws->W, ws->vc, ws->gap, &p, ws->rwork, ws->riwork,
                                why, sizeof why);

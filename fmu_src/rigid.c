@@ -159,31 +159,60 @@ int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const do
     return 1;
 }
 
+/* Wn_a Wn_b' (B = NULL) or Wn_a B Wn_b' with B = columns Y (B != NULL: Y[:, b] = M^-1 Wn_b') for the contacts in
+ * act, into A (na x na), regularized: coinciding wheels (2D pairs) make it singular */
+static void normal_gram(int nq, int ldw, const double *W, const int *act, int na, const double *Y, double *A) {
+    double diag = 0;
+    for (int a = 0; a < na; a++)
+        for (int b = 0; b < na; b++) {
+            double s = 0;
+            for (int j = 0; j < nq; j++)
+                s += W[3 * act[a] + 2 + (size_t)j * ldw] *
+                     (Y ? Y[j + (size_t)b * nq] : W[3 * act[b] + 2 + (size_t)j * ldw]);
+            A[a + (size_t)b * na] = s;
+            if (a == b) diag = fmax(diag, s);
+        }
+    for (int a = 0; a < na; a++) A[a + (size_t)a * na] += 1e-12 * diag;
+}
+
+/* After a solve for the set act: drop members with a negative multiplier (they would pull), add touching
+ * non-members the step would drive into the ground (predicted < -tiny). Returns 1 if the set changed. */
+static int update_set(int nc, const double *gap, double gap_tol, const double *mult, const double *predicted,
+                      int *act, int *na, int *member) {
+    int changed = 0, keep = 0;
+    for (int a = 0; a < *na; a++) {
+        if (mult[a] >= 0) act[keep++] = act[a];
+        else member[act[a]] = 0, changed = 1;
+    }
+    *na = keep;
+    if (changed) return 1;                     /* re-solve with the smaller set before adding any */
+    for (int k = 0; k < nc; k++)
+        if (!member[k] && gap[k] <= gap_tol && predicted[k] < -1e-12) {
+            act[(*na)++] = k;
+            member[k] = 1;
+            changed = 1;
+        }
+    return changed;
+}
+
 int rigid_project(int nq, int nc, double *q, double *u, const double *M, const double *W, const double *vc,
                   const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
     const int ldw = 3 * nc;
     double *A = work, *rhs = A + (size_t)nc * nc, *Mlu = rhs + nc, *Y = Mlu + (size_t)nq * nq;
-    int *piv = iwork, *act = piv + nq + nc;
+    double *step = Y + (size_t)nq * nc, *pred = step + nq;
+    int *piv = iwork, *act = piv + nq + nc, *member = act + nc;
     int na = 0, changed = 0;
 
-    /* positions: every penetrating contact back onto gap = 0 (a wheel just above the ground may be lifting off:
-     * it is left alone, and the Baumgarte term pulls a touching one down) */
+    /* positions: penetrating contacts back onto gap = 0 by the minimum-norm step dq = -Wn' m, m >= 0, with
+     * every touching contact the step would push into the ground held at gap = 0 too (simultaneously: fixing
+     * one wheel must not sink its neighbour); a wheel just above the ground may be lifting off and is left
+     * alone unless the step would push it in */
+    memset(member, 0, sizeof(int) * (size_t)nc);
     for (int k = 0; k < nc; k++)
-        if (gap[k] < 0) act[na++] = k;
-    if (na > 0) {
-        double diag = 0;
-        for (int a = 0; a < na; a++)
-            for (int b = 0; b < na; b++) {
-                double s = 0;
-                for (int j = 0; j < nq; j++)
-                    s += W[3 * act[a] + 2 + (size_t)j * ldw] * W[3 * act[b] + 2 + (size_t)j * ldw];
-                A[a + (size_t)b * na] = s;
-                if (a == b) diag = fmax(diag, s);
-            }
-        for (int a = 0; a < na; a++) {
-            A[a + (size_t)a * na] += 1e-12 * diag;   /* coinciding wheels (2D pairs) make Wn Wn' singular */
-            rhs[a] = gap[act[a]];
-        }
+        if (gap[k] < -1e-13) act[na++] = k, member[k] = 1;
+    for (int round = 0; na > 0; round++) {
+        normal_gram(nq, ldw, W, act, na, NULL, A);
+        for (int a = 0; a < na; a++) rhs[a] = -gap[act[a]];
         if (linalg_lu_factor(na, A, piv)) {
             snprintf(msg, msg_len, "rigid contact: singular position projection");
             return -1;
@@ -192,56 +221,53 @@ int rigid_project(int nq, int nc, double *q, double *u, const double *M, const d
         for (int j = 0; j < nq; j++) {
             double s = 0;
             for (int a = 0; a < na; a++) s += W[3 * act[a] + 2 + (size_t)j * ldw] * rhs[a];
-            q[j] -= s;
+            step[j] = s;                                   /* dq = Wn' m: m > 0 lifts */
         }
-        changed = 1;
+        for (int k = 0; k < nc; k++) pred[k] = gap[k] + row_dot(W, ldw, 3 * k + 2, step, nq);
+        /* the set may cycle on degenerate geometry: after 2 nc + 1 rounds take the last step as it is */
+        if (round >= 2 * nc || !update_set(nc, gap, p->gap_tol, rhs, pred, act, &na, member)) {
+            for (int j = 0; j < nq; j++) q[j] += step[j];
+            changed = 1;
+            break;
+        }
     }
 
-    /* velocities: inelastic impact of approaching contacts; drop any that would need a pulling impulse */
+    /* velocities: inelastic impact of the approaching contacts, L >= 0 with Wn (u + du) = 0 on the impact set;
+     * touching contacts the impulse would drive into the ground join the set (the impact is simultaneous),
+     * contacts that would need a pulling impulse leave it */
     na = 0;
+    memset(member, 0, sizeof(int) * (size_t)nc);
     for (int k = 0; k < nc; k++)
-        if (gap[k] <= p->gap_tol && vc[3 * k + 2] < 0) act[na++] = k;
+        if (gap[k] <= p->gap_tol && vc[3 * k + 2] < 0) act[na++] = k, member[k] = 1;
     if (na == 0) return changed;
     memcpy(Mlu, M, sizeof(double) * (size_t)nq * nq);
     if (linalg_lu_factor(nq, Mlu, piv)) {
         snprintf(msg, msg_len, "rigid contact: the mass matrix is singular");
         return -1;
     }
-    for (int round = 0; round <= nc && na > 0; round++) {
+    for (int round = 0; round <= 2 * nc && na > 0; round++) {
         for (int a = 0; a < na; a++) {
             double *col = Y + (size_t)a * nq;
             for (int j = 0; j < nq; j++) col[j] = W[3 * act[a] + 2 + (size_t)j * ldw];
             linalg_lu_solve(nq, Mlu, piv, col);
         }
-        double diag = 0;
-        for (int a = 0; a < na; a++)
-            for (int b = 0; b < na; b++) {
-                double s = 0;
-                for (int j = 0; j < nq; j++) s += W[3 * act[a] + 2 + (size_t)j * ldw] * Y[j + (size_t)b * nq];
-                A[a + (size_t)b * na] = s;
-                if (a == b) diag = fmax(diag, s);
-            }
-        for (int a = 0; a < na; a++) {
-            A[a + (size_t)a * na] += 1e-12 * diag;
-            rhs[a] = -row_dot(W, ldw, 3 * act[a] + 2, u, nq);
-        }
+        normal_gram(nq, ldw, W, act, na, Y, A);
+        for (int a = 0; a < na; a++) rhs[a] = -row_dot(W, ldw, 3 * act[a] + 2, u, nq);
         if (linalg_lu_factor(na, A, piv + nq)) {
             snprintf(msg, msg_len, "rigid contact: singular impact system");
             return -1;
         }
         linalg_lu_solve(na, A, piv + nq, rhs);
-        int keep = 0;
-        for (int a = 0; a < na; a++)
-            if (rhs[a] >= 0) act[keep++] = act[a];
-        if (keep == na) {
-            for (int j = 0; j < nq; j++) {
-                double s = 0;
-                for (int a = 0; a < na; a++) s += Y[j + (size_t)a * nq] * rhs[a];
-                u[j] += s;
-            }
+        for (int j = 0; j < nq; j++) {
+            double s = 0;
+            for (int a = 0; a < na; a++) s += Y[j + (size_t)a * nq] * rhs[a];
+            step[j] = s;
+        }
+        for (int k = 0; k < nc; k++) pred[k] = vc[3 * k + 2] + row_dot(W, ldw, 3 * k + 2, step, nq);
+        if (!update_set(nc, gap, p->gap_tol, rhs, pred, act, &na, member)) {
+            for (int j = 0; j < nq; j++) u[j] += step[j];
             return 1;
         }
-        na = keep;
     }
     return changed;
 }
