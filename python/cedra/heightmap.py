@@ -8,6 +8,10 @@ Jacobian), tests can evaluate it, and a scene's heightmap is validated before an
 
 The host library holds ONE process-wide map (the last one loaded), active in the thread that loaded it: the
 Python-side model functions of a heightmap scene evaluate whichever map was loaded last.
+
+Caveat (CasADi 3.8, Python side only): outside the grid the external fails, which `external()(x)` called
+directly reports as an exception, but an SX function that embeds it (the model's functions) ignores the failure
+and yields 0 there. The generated C code does check it: the FMU stops with fmi2Discard naming the point.
 """
 from __future__ import annotations
 
