@@ -101,10 +101,12 @@ void model_bind(model_ws *ws, const double *inp, const double *par) {
 
 void model_bind_terrain(model_ws *ws, void *terrain) { ws->terrain = (heightmap *)terrain; }
 
-/* the generated functions of a heightmap scene evaluate the thread's active map: this instance's */
+/* the generated functions of a heightmap scene evaluate the thread's active map: this instance's (its reason
+ * cleared, so a message names the failure of this evaluation, not an earlier one) */
 static void activate(model_ws *ws) {
 #if CEDRA_HEIGHTMAP
     heightmap_activate(ws->terrain);
+    if (ws->terrain) ws->terrain->msg[0] = '\0';
 #else
     (void)ws;
 #endif
