@@ -41,36 +41,24 @@ def write_heightmap(path=SHIPPED) -> Path:
 
 
 def drive(build_dir="build", stop_time=None):
-    """Run the shipped hills3d FMU under the main job's speed controller (cedra.simulate.SpeedController, the same
-    torque on every wheel); returns (names, rows) with rows [t, outputs...] every output interval."""
+    """Run the shipped hills3d FMU under the main job's closed loop (cedra.simulate.run_bump: the sampled speed
+    controller, the same torque on every wheel); returns (names, rows), names[0] = "time"."""
     from cedra import scene as scn
-    from cedra.driver import RoverFMU
     from cedra.fmu import build_fmu
-    from cedra.simulate import SAMPLE, SpeedController
+    from cedra.simulate import run_bump
     sc = scn.load_shipped("hills3d")
     fmu = Path(build_dir) / "hills3d.fmu"
     if not fmu.exists():
         fmu = build_fmu(sc.spec(), build_dir)
-    names = [f"body.{n}" for n in ("x", "y", "z", "yaw", "pitch", "roll", "vx")] + \
-        [f"wheel[{k}].Fn" for k in range(1, 7)] + ["energy.kinetic"]
-    ctrl = SpeedController()
-    rows = []
-    r = RoverFMU(fmu)
-    try:
-        r.start()
-        for k in range(1, int(round((stop_time or sc.stop_time) / SAMPLE)) + 1):
-            tau = ctrl(r.get(["body.vx"])[0])
-            r.set({f"tau[{i}]": tau for i in range(1, 7)})
-            if not r.step(k * SAMPLE):
-                raise RuntimeError(f"hills3d stopped at t={r.time}: " + "; ".join(r.messages[-3:]))
-            rows.append(np.concatenate([[r.time], r.get(names)]))
-    finally:
-        r.close()
-    return names, np.array(rows)
+    extra = [f"body.{n}" for n in ("y", "yaw", "roll")] + ["energy.kinetic"]
+    names, rows, _, info = run_bump(fmu, stop_time or sc.stop_time, extra=extra)
+    if not info["ok"]:
+        raise RuntimeError(f"hills3d stopped at t={info['simulated']}: " + "; ".join(info["messages"][-3:]))
+    return names, rows
 
 
 if __name__ == "__main__":
     print(write_heightmap())
     names, rows = drive(stop_time=float(sys.argv[1]) if len(sys.argv) > 1 else None)
-    last = dict(zip(["t"] + names, rows[-1]))
+    last = dict(zip(names, rows[-1]))
     print(", ".join(f"{k}={v:.4g}" for k, v in last.items()))

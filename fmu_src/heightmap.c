@@ -192,25 +192,20 @@ static void basis(double t, double b[4][4]) {
     b[3][3] = 1.0;
 }
 
-/* the cell of coordinate u in [0, n-1] (the last node belongs to the last cell) and the offset in it */
-static int cell(double u, int n, double *t) {
-    int i = (int)floor(u);
-    if (i > n - 2) i = n - 2;
-    *t = u - i;
-    return i;
+/* the cell of grid coordinate u (clamped to [0, n-1]; the last node belongs to the last cell) */
+static int cell(double u, int n) {
+    int i = (int)floor(fmin(fmax(u, 0.0), n - 1));
+    return i > n - 2 ? n - 2 : i;
 }
 
 int heightmap_eval(const heightmap *hm, double X, double Y, double *h, double *d1, double *d2, double *d3) {
     double u = (X - hm->x0) / hm->dx, v = (Y - hm->y0) / hm->dy;
     const double slack = 1e-9;
     if (!(u >= -slack && u <= hm->nx - 1 + slack && v >= -slack && v <= hm->ny - 1 + slack)) return 1;
-    double tu, tv, bu[4][4], bv[4][4];
-    int i = cell(fmin(fmax(u, 0.0), hm->nx - 1), hm->nx, &tu);
-    int j = cell(fmin(fmax(v, 0.0), hm->ny - 1), hm->ny, &tv);
-    tu += u - fmin(fmax(u, 0.0), hm->nx - 1);     /* within slack of the edge: the edge cell's polynomial */
-    tv += v - fmin(fmax(v, 0.0), hm->ny - 1);
-    basis(tu, bu);
-    basis(tv, bv);
+    double bu[4][4], bv[4][4];
+    int i = cell(u, hm->nx), j = cell(v, hm->ny);
+    basis(u - i, bu);                              /* within slack of an edge: the edge cell's polynomial */
+    basis(v - j, bv);
     /* s[a][b] = d^(a+b) h / du^a dv^b for a + b <= 3 */
     double s[4][4] = {{0}};
     int mx = hm->nx + 2;

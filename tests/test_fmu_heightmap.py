@@ -69,7 +69,7 @@ def test_settled_start_equals_the_analytic_flat_ground(hills_fmu, tmp_path_facto
 
 def test_drives_across_the_hills():
     names, rows = hills.drive(stop_time=6.0)
-    col = {n: rows[:, k + 1] for k, n in enumerate(names)}
+    col = dict(zip(names, rows.T))
     assert np.all(np.isfinite(rows))
     assert col["body.x"][-1] > 1.1                          # the front wheels past the first hill's crest
     assert np.max(np.abs(col["body.roll"])) > 0.02          # the hills are not symmetric about the track

@@ -115,12 +115,12 @@ class CedraModel:
         self.contacts = []
         for wh in self.rover.wheels:
             geo = contact_geometry(wh.center, wh.axle, self.terrain, p["R_w"])
-            v_point = wh.velocity + ca.cross(wh.omega, geo.point - wh.center)
-            # partial velocities at a free point, then the contact point put in: no differentiation through the
-            # contact search (the heightmap terrain's derivative chain is finite, see terrain.Terrain)
+            # velocity of the wheel's material point at a free point, then the contact point put in: the partial
+            # velocities never differentiate through the contact search (the heightmap terrain's derivative
+            # chain is finite, see terrain.Terrain)
             at = ca.SX.sym("p_contact", 3)
-            partials = ca.substitute(ca.jacobian(wh.velocity + ca.cross(wh.omega, at - wh.center), self.u), at,
-                                     geo.point)
+            v_at = wh.velocity + ca.cross(wh.omega, at - wh.center)
+            v_point = ca.substitute(v_at, at, geo.point)
             vc = geo.frame.T @ v_point                      # contact-frame components (x, y, n)
             if self.rigid:   # forces come from the glue's constrained solve; 0 placeholders in the outputs
                 self.contacts.append(dict(geo=geo, Fn=0, Fx=0, Fy=0, slip=ca.norm_2(vc[0:2]), flag=geo.depth >= 0,
@@ -128,7 +128,7 @@ class CedraModel:
                 continue
             force, Fn, Fx, Fy, slip, flag = compliant_force(geo, v_point, p["ground_k"], p["ground_d"], i_["mu"],
                                                             p["v_eps"])
-            self.kane.add_point_force(v_point, force, partials)
+            self.kane.add_point_force(v_point, force, ca.substitute(ca.jacobian(v_at, self.u), at, geo.point))
             self.contacts.append(dict(geo=geo, Fn=Fn, Fx=Fx, Fy=Fy, slip=slip, flag=flag, force=force,
                                       v_point=v_point, vc=vc))
         self.M, self.f = self.kane.equations()

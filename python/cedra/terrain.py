@@ -6,6 +6,7 @@ from typing import Callable
 
 import casadi as ca
 
+from . import heightmap
 from .spec import Quantity
 
 TERRAIN_INPUTS = {
@@ -72,7 +73,6 @@ class Terrain:
         X, Y = ca.SX.sym("X"), ca.SX.sym("Y")
         t = [inputs[n] for n in self.kind.inputs]
         if kind == "heightmap":
-            from . import heightmap
             if not heightmap_file:
                 raise ValueError("terrain 'heightmap' needs its heightmap file")
             heightmap.load(heightmap_file)
