@@ -256,6 +256,18 @@ int model_post_step(void *ctx, double t, double *x) {
         if (rk == 0) break;
         r = 1;
     }
+#ifdef RIGID_DEBUG
+    if (t > 9.8 && t < 9.83) {
+        eval_rigid_terms(ws, x, x + NQ, t);
+        fprintf(stderr, "POST t=%.6f gap", t);
+        for (int k = 0; k < NC; k++) fprintf(stderr, " %.3g", ws->gap[k]);
+        fprintf(stderr, " vn");
+        for (int k = 0; k < NC; k++) fprintf(stderr, " %.3g", ws->vc[3 * k + 2]);
+        fprintf(stderr, " vt");
+        for (int k = 0; k < NC; k++) fprintf(stderr, " %.3g", ws->vc[3 * k]);
+        fprintf(stderr, "\n");
+    }
+#endif
     int d = rigid_decide(ws, x, t);
     if (d < 0) return -1;
     return r || d;     /* a new mode set changes F at x: the solver must not reuse F (FSAL) */

@@ -7,11 +7,15 @@
 
 #include "linalg.h"
 
-#define MAX_ROWS(nc) (3 * (nc))
 /* Constraint force mixing: with six sticking wheels the tangential contact forces are statically indeterminate
  * (18 constraints on <= 17 speeds), so the Delassus matrix A = C M^-1 D' is singular. A relative diagonal shift
  * of 1e-10 picks the (almost) minimum-norm forces and changes the constraint accelerations by ~1e-10 lambda. */
 #define CFM 1e-10
+/* Complementarity tolerances of the decision: a normal force (N, or N.s for an impulse) below -FORCE_TOL pulls;
+ * a constraint value (m/s^2, or m/s) more than VALUE_TOL below its target drives a wheel into the ground. They
+ * are far above the round-off of the solves and far below anything physical. */
+#define FORCE_TOL 1e-9
+#define VALUE_TOL 1e-8
 
 size_t rigid_workspace_size(int nq, int nc) { return (size_t)RIGID_WORK(nq, nc); }
 
@@ -23,152 +27,339 @@ static double row_dot(const double *W, int ldw, int row, const double *x, int nq
     return s;
 }
 
+/* The linear complementarity problem of one decision, for accelerations (M udot = f + W' lambda: x0 = M^-1 f,
+ * bias = dW/dt u, target = the Baumgarte-stabilized constraint accelerations) or for an impact (M du = W' L:
+ * x0 = 0, bias = the contact velocities, target = 0). For every contact row, y = W x + bias is the constraint
+ * value; a contact in contact holds y = target on its rows (stick: x, y, n; slip: n). */
+typedef struct {
+    int nq, nc;
+    const double *Mlu;     /* factored M */
+    const int *piv;
+    const double *x0, *W, *bias, *target;
+    double mu;
+    const int *touching;   /* contacts that may carry force (gap <= gap_tol) */
+    const int *entry;      /* the mode a contact enters contact in (stick, or slip against its sliding) */
+    const double *entry_dir;
+    /* scratch */
+    int *alias;            /* alias[k] = j < k: contact k is contact j (2D pairs), else -1 */
+    int *ncopy;            /* how many contacts a primary one stands for */
+    double *C, *D, *Dt, *A, *r, *lam, *try_dir, *stick_dir;
+    int *piv2, *row_contact, *row_comp, *try_mode, *idx;
+} contact_lcp;
+
+#define LCP_WORK(nq, nc) (9 * (nc) * (nq) + 9 * (nc) * (nc) + 10 * (nc))
+#define LCP_IWORK(nc) (13 * (nc))
+
+static void lcp_scratch(contact_lcp *s, double *work, int *iwork) {
+    const int mmax = 3 * s->nc, nq = s->nq;
+    s->C = work;
+    s->D = s->C + (size_t)mmax * nq;
+    s->Dt = s->D + (size_t)mmax * nq;
+    s->A = s->Dt + (size_t)nq * mmax;
+    s->r = s->A + (size_t)mmax * mmax;
+    s->lam = s->r + mmax;
+    s->try_dir = s->lam + mmax;
+    s->stick_dir = s->try_dir + 2 * s->nc;
+    s->piv2 = iwork;
+    s->row_contact = s->piv2 + mmax;
+    s->row_comp = s->row_contact + mmax;
+    s->alias = s->row_comp + mmax;
+    s->ncopy = s->alias + s->nc;
+    s->try_mode = s->ncopy + s->nc;
+    s->idx = s->try_mode + s->nc;
+}
+
+/* Contacts that are the same contact twice: the planar model carries each bogie pair as one wheel, so wheels 3
+ * and 4 have the rows, gaps and velocities of wheels 1 and 2. Solved as one contact carrying both wheels'
+ * force (split evenly), with one mode: two copies of a constraint make the problem degenerate, and a pivoting
+ * decision cycles on degenerate problems (the two copies push each other off and back). */
+static void find_aliases(contact_lcp *s, const double *gap) {
+    const int nq = s->nq, nc = s->nc, ldw = 3 * nc;
+    for (int k = 0; k < nc; k++) {
+        s->alias[k] = -1;
+        s->ncopy[k] = 1;
+        for (int j = 0; j < k && s->alias[k] < 0; j++) {
+            if (s->alias[j] >= 0 || fabs(gap[j] - gap[k]) > 1e-12) continue;
+            int same = 1;
+            for (int c = 0; c < 3 && same; c++) {
+                const int a = 3 * j + c, b = 3 * k + c;
+                double scale = 1e-300;
+                for (int l = 0; l < nq; l++) scale = fmax(scale, fabs(s->W[a + (size_t)l * ldw]));
+                for (int l = 0; l < nq && same; l++)
+                    same = fabs(s->W[a + (size_t)l * ldw] - s->W[b + (size_t)l * ldw]) <= 1e-12 * scale;
+                same = same && fabs(s->bias[a] - s->bias[b]) <= 1e-12 * (1 + fabs(s->bias[a])) &&
+                       s->target[a] == s->target[b];
+            }
+            if (same) {
+                s->alias[k] = j;
+                s->ncopy[j]++;
+            }
+        }
+    }
+}
+
+/* One solve with the modes held: x, lambda (per contact: Fx, Fy, Fn in the contact frame; 0 when airborne) and,
+ * if y != NULL, the constraint values y of every row. Aliased contacts take their primary's mode and share its
+ * force. Returns 0, or 1 on a singular contact system. */
+static int lcp_solve(const contact_lcp *s, int *mode, double *dir, double *x, double *lambda, double *y) {
+    const int nq = s->nq, nc = s->nc, ldw = 3 * nc, mmax = 3 * nc;
+    int m = 0;
+    for (int k = 0; k < nc; k++) {
+        if (s->alias[k] >= 0) {
+            mode[k] = mode[s->alias[k]];
+            dir[2 * k] = dir[2 * s->alias[k]];
+            dir[2 * k + 1] = dir[2 * s->alias[k] + 1];
+            continue;
+        }
+        if (mode[k] == RIGID_AIRBORNE) continue;
+        for (int c = mode[k] == RIGID_STICK ? 0 : 2; c < 3; c++) {
+            int w = 3 * k + c;
+            for (int j = 0; j < nq; j++) {
+                double cw = s->W[w + (size_t)j * ldw];
+                s->C[m + (size_t)j * mmax] = cw;
+                /* a slipping contact's force column carries its friction mu Fn dir (Eq. 68); the column of a
+                 * contact standing for ncopy wheels carries all their forces */
+                s->D[m + (size_t)j * mmax] =
+                    mode[k] == RIGID_SLIP ? cw + s->mu * (dir[2 * k] * s->W[3 * k + (size_t)j * ldw] +
+                                                          dir[2 * k + 1] * s->W[3 * k + 1 + (size_t)j * ldw])
+                                          : cw;
+            }
+            s->row_contact[m] = k;
+            s->row_comp[m] = c;
+            m++;
+        }
+    }
+    memcpy(x, s->x0, sizeof(double) * nq);
+    memset(lambda, 0, sizeof(double) * 3 * (size_t)nc);
+    if (m > 0) {
+        /* Dt = M^-1 D', A = C Dt, r = target - bias - C x0 */
+        for (int i = 0; i < m; i++) {
+            double *col = s->Dt + (size_t)i * nq;
+            for (int j = 0; j < nq; j++) col[j] = s->D[i + (size_t)j * mmax];
+            linalg_lu_solve(nq, s->Mlu, s->piv, col);
+        }
+        double diag = 0;
+        for (int i = 0; i < m; i++) {
+            for (int j = 0; j < m; j++) {
+                double acc = 0;
+                for (int l = 0; l < nq; l++) acc += s->C[i + (size_t)l * mmax] * s->Dt[l + (size_t)j * nq];
+                s->A[i + (size_t)j * m] = acc;
+            }
+            diag = fmax(diag, fabs(s->A[i + (size_t)i * m]));
+            int w = 3 * s->row_contact[i] + s->row_comp[i];
+            double cx0 = 0;
+            for (int l = 0; l < nq; l++) cx0 += s->C[i + (size_t)l * mmax] * s->x0[l];
+            s->r[i] = s->target[w] - s->bias[w] - cx0;
+        }
+        for (int i = 0; i < m; i++) s->A[i + (size_t)i * m] += CFM * diag;
+        if (linalg_lu_factor(m, s->A, s->piv2)) return 1;
+        memcpy(s->lam, s->r, sizeof(double) * m);
+        linalg_lu_solve(m, s->A, s->piv2, s->lam);
+        for (int i = 0; i < m; i++)
+            for (int j = 0; j < nq; j++) x[j] += s->Dt[j + (size_t)i * nq] * s->lam[i];
+        for (int i = 0; i < m; i++) {
+            int k = s->row_contact[i];
+            double share = s->lam[i] / s->ncopy[k];
+            lambda[3 * k + s->row_comp[i]] = share;
+            if (mode[k] == RIGID_SLIP) {
+                lambda[3 * k] = s->mu * share * dir[2 * k];
+                lambda[3 * k + 1] = s->mu * share * dir[2 * k + 1];
+            }
+        }
+        for (int k = 0; k < nc; k++)
+            if (s->alias[k] >= 0) memcpy(lambda + 3 * k, lambda + 3 * s->alias[k], 3 * sizeof(double));
+    }
+    if (y)
+        for (int w = 0; w < 3 * nc; w++) y[w] = row_dot(s->W, ldw, w, x, nq) + s->bias[w];
+    return 0;
+}
+
+enum violation { CONSISTENT = 0, PULLS, SINKS, OUTSIDE_CONE, SLIDES_WITH_FRICTION };
+
+/* Is contact k's part of a solution consistent (Eqs. 63-68)? In contact: no pulling normal force; airborne and
+ * touching: not driven into the ground; sticking: inside the friction cone; slipping from rest: it does not
+ * slide along its own friction. */
+static enum violation check_contact(const contact_lcp *s, int k, const int *mode, const double *dir,
+                                    const double *lambda, const double *y) {
+    double fx = lambda[3 * k], fy = lambda[3 * k + 1], fn = lambda[3 * k + 2];
+    if (mode[k] == RIGID_AIRBORNE)
+        return s->touching[k] && y[3 * k + 2] < s->target[3 * k + 2] - VALUE_TOL ? SINKS : CONSISTENT;
+    if (fn < -FORCE_TOL) return PULLS;
+    if (mode[k] == RIGID_STICK) return hypot(fx, fy) > s->mu * fn * (1 + 1e-12) ? OUTSIDE_CONE : CONSISTENT;
+    if (s->entry[k] == RIGID_STICK) {      /* slipping from rest: the sliding that starts must oppose dir */
+        double ax = y[3 * k] - s->target[3 * k], ay = y[3 * k + 1] - s->target[3 * k + 1];
+        if (ax * dir[2 * k] + ay * dir[2 * k + 1] > VALUE_TOL) return SLIDES_WITH_FRICTION;
+    }
+    return CONSISTENT;
+}
+
+static int all_consistent(const contact_lcp *s, const int *mode, const double *dir, const double *lambda,
+                          const double *y) {
+    for (int k = 0; k < s->nc; k++)
+        if (s->alias[k] < 0 && check_contact(s, k, mode, dir, lambda, y) != CONSISTENT) return 0;
+    return 1;
+}
+
+/* The last resort when switching cycles (friction can make the problem non-monotone, Painleve): every mode set
+ * of the touching contacts, stick before slip before airborne (so the first consistent one keeps the most
+ * contact and grip). A slip starting from rest slides against the force that held it in the all-stick
+ * solution. Returns 0 with the modes set, or 1. */
+static int lcp_enumerate(const contact_lcp *s, int *mode, double *dir, double *x, double *lambda, double *y) {
+    const int nc = s->nc;
+    int n = 0;
+    for (int k = 0; k < nc; k++) {
+        s->try_mode[k] = s->touching[k] ? RIGID_STICK : RIGID_AIRBORNE;
+        s->try_dir[2 * k] = 1;
+        s->try_dir[2 * k + 1] = 0;
+        if (s->touching[k] && s->alias[k] < 0) s->idx[n++] = k;
+    }
+    if (lcp_solve(s, s->try_mode, s->try_dir, x, lambda, y)) return 1;
+    for (int k = 0; k < nc; k++) {
+        double fx = lambda[3 * k], fy = lambda[3 * k + 1], ft = hypot(fx, fy);
+        int sliding = s->entry[k] == RIGID_SLIP;
+        s->stick_dir[2 * k] = sliding ? s->entry_dir[2 * k] : ft > 0 ? fx / ft : 1;
+        s->stick_dir[2 * k + 1] = sliding ? s->entry_dir[2 * k + 1] : ft > 0 ? fy / ft : 0;
+    }
+    long total = 1;
+    for (int i = 0; i < n; i++) total *= 3;
+    static const int order[3] = {RIGID_STICK, RIGID_SLIP, RIGID_AIRBORNE};
+    for (long code = 0; code < total; code++) {
+        long c = code;
+        for (int i = 0; i < n; i++, c /= 3) {
+            int k = s->idx[i];
+            s->try_mode[k] = order[c % 3];
+            s->try_dir[2 * k] = s->stick_dir[2 * k];
+            s->try_dir[2 * k + 1] = s->stick_dir[2 * k + 1];
+        }
+        if (lcp_solve(s, s->try_mode, s->try_dir, x, lambda, y)) continue;
+        if (all_consistent(s, s->try_mode, s->try_dir, lambda, y)) {
+            memcpy(mode, s->try_mode, sizeof(int) * (size_t)nc);
+            memcpy(dir, s->try_dir, sizeof(double) * 2 * (size_t)nc);
+            return 0;
+        }
+    }
+    return 1;
+}
+
+/* The decision: from the modes given, solve and switch one contact at a time until the solution is
+ * consistent, in the paper's order (contact first, Eqs. 63-65, then the friction cone, Eqs. 66-68):
+ * - a sticking contact that would pull slips first (its slipping friction may press it on), a slipping one
+ *   that would pull leaves the ground;
+ * - a touching airborne contact that would be driven into the ground enters contact in its entry mode;
+ * - a sticking contact outside the friction cone slips with its friction at the limit along the sticking force;
+ * - a contact slipping from rest that would slide along its own friction sticks again.
+ * Lowest index first, one switch per round (Murty's least-index rule); if that has not settled after 4 nc + 4
+ * switches, every mode set is tried (lcp_enumerate). Returns 0, or 1 with the reason in msg. */
+static int lcp_decide(const contact_lcp *s, int *mode, double *dir, double *x, double *lambda, double *y,
+                      char *msg, size_t msg_len) {
+    const int nc = s->nc, max_rounds = 4 * nc + 4;
+    for (int round = 0; round < max_rounds; round++) {
+        if (lcp_solve(s, mode, dir, x, lambda, y)) {
+            snprintf(msg, msg_len, "rigid contact: singular contact system");
+            return 1;
+        }
+        int flip = -1;
+        enum violation v = CONSISTENT;
+        for (int pass = 0; pass < 2 && flip < 0; pass++)      /* pass 0: normal direction, pass 1: friction */
+            for (int k = 0; k < nc && flip < 0; k++) {
+                if (s->alias[k] >= 0) continue;
+                v = check_contact(s, k, mode, dir, lambda, y);
+                if (v != CONSISTENT && (pass == 1 || v == PULLS || v == SINKS)) flip = k;
+            }
+        if (flip < 0) return 0;
+        const int k = flip;
+        double fx = lambda[3 * k], fy = lambda[3 * k + 1], ft = hypot(fx, fy);
+        if ((v == PULLS && mode[k] == RIGID_STICK && ft > 0) || v == OUTSIDE_CONE) {
+            mode[k] = RIGID_SLIP;
+            dir[2 * k] = ft > 0 ? fx / ft : 1;
+            dir[2 * k + 1] = ft > 0 ? fy / ft : 0;
+        } else if (v == PULLS) {
+            mode[k] = RIGID_AIRBORNE;
+        } else if (v == SINKS) {
+            mode[k] = s->entry[k];
+            dir[2 * k] = s->entry_dir[2 * k];
+            dir[2 * k + 1] = s->entry_dir[2 * k + 1];
+        } else {                                   /* SLIDES_WITH_FRICTION */
+            mode[k] = RIGID_STICK;
+        }
+    }
+    if (lcp_enumerate(s, mode, dir, x, lambda, y) == 0) return 0;
+    snprintf(msg, msg_len, "rigid contact: no consistent stick/slip/airborne mode set (%d switches, then every "
+             "set of the touching contacts tried)", max_rounds);
+    return 1;
+}
+
+/* per contact, the mode it enters contact in: stick when sliding slower than v_stick, else slip against the
+ * sliding (Eq. 67) */
+static void entry_modes(int nc, const double *vc, const rigid_params *p, int *entry, double *entry_dir) {
+    for (int k = 0; k < nc; k++) {
+        double vx = vc[3 * k], vy = vc[3 * k + 1], vt = hypot(vx, vy);
+        entry[k] = vt <= p->v_stick ? RIGID_STICK : RIGID_SLIP;
+        entry_dir[2 * k] = vt <= p->v_stick ? 1 : -vx / vt;
+        entry_dir[2 * k + 1] = vt <= p->v_stick ? 0 : -vy / vt;
+    }
+}
+
 int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const double *W, const double *bias,
                       const double *vc, const double *gap, const rigid_params *p, int decide, int *mode,
                       double *dir, double *udot, double *lambda, double *work, int *iwork, char *msg,
                       size_t msg_len) {
-    const int ldw = 3 * nc, mmax = MAX_ROWS(nc);
-    double *Mlu = work, *Xf = Mlu + nq * nq, *C = Xf + nq, *D = C + (size_t)mmax * nq,
-           *Dt = D + (size_t)mmax * nq, *A = Dt + (size_t)nq * mmax, *r = A + (size_t)mmax * mmax,
-           *lam = r + mmax, *target = lam + mmax; /* target + mmax: spare */
-    int *piv = iwork, *piv2 = piv + nq, *row_contact = piv2 + mmax, *row_comp = row_contact + mmax;
+    double *Mlu = work, *x0 = Mlu + (size_t)nq * nq, *target = x0 + nq, *y = target + 3 * nc,
+           *entry_dir = y + 3 * nc, *scratch = entry_dir + 2 * nc;
+    int *piv = iwork, *touching = piv + nq, *entry = touching + nc, *iscratch = entry + nc;
+    contact_lcp s = {.nq = nq, .nc = nc, .Mlu = Mlu, .piv = piv, .x0 = x0, .W = W, .bias = bias,
+                     .target = target, .mu = p->mu, .touching = touching, .entry = entry, .entry_dir = entry_dir};
+    lcp_scratch(&s, scratch, iscratch);
 
     memcpy(Mlu, M, sizeof(double) * (size_t)nq * nq);
     if (linalg_lu_factor(nq, Mlu, piv)) {
         snprintf(msg, msg_len, "rigid contact: the mass matrix is singular");
         return 1;
     }
-    memcpy(Xf, f, sizeof(double) * nq);
-    linalg_lu_solve(nq, Mlu, piv, Xf);
-
-    /* held modes: a slipping contact's friction still follows its current sliding direction (Eq. 67), which is
-     * smooth while it slides; only near |v_t| = 0 the direction held from the decision is kept */
-    for (int k = 0; !decide && k < nc; k++) {
-        double vx = vc[3 * k], vy = vc[3 * k + 1], vt = hypot(vx, vy);
-        if (mode[k] == RIGID_SLIP && vt > p->v_stick) {
-            dir[2 * k] = -vx / vt;
-            dir[2 * k + 1] = -vy / vt;
-        }
+    memcpy(x0, f, sizeof(double) * nq);
+    linalg_lu_solve(nq, Mlu, piv, x0);
+    for (int k = 0; k < nc; k++) {       /* Baumgarte: gap'' + 2 alpha gap' + alpha^2 gap = 0, v_t' + 2 alpha v_t = 0 */
+        for (int c = 0; c < 3; c++) target[3 * k + c] = -2 * p->alpha * vc[3 * k + c];
+        target[3 * k + 2] -= p->alpha * p->alpha * gap[k];
     }
-    /* modes implied by the state */
-    for (int k = 0; decide && k < nc; k++) {
-        double vx = vc[3 * k], vy = vc[3 * k + 1], vt = hypot(vx, vy);
-        if (gap[k] > p->gap_tol) {
-            mode[k] = RIGID_AIRBORNE;
-        } else if (vt <= p->v_stick) {
-            mode[k] = RIGID_STICK;
-        } else {
-            mode[k] = RIGID_SLIP;
-            dir[2 * k] = -vx / vt;          /* friction opposes sliding (Eq. 67) */
-            dir[2 * k + 1] = -vy / vt;
-        }
-    }
+    find_aliases(&s, gap);
 
-    const int max_rounds = 4 * nc + 4;
-    for (int round = 0; round < max_rounds; round++) {
-        /* rows: stick = x, y, n (3 unknowns); slip = n only, its force column carries mu Fn dir (Eq. 68) */
-        int m = 0;
+    if (!decide) {
+        /* held modes: a slipping contact's friction still follows its current sliding direction (Eq. 67), which
+         * is smooth while it slides; only near |v_t| = 0 the direction held from the decision is kept */
         for (int k = 0; k < nc; k++) {
-            if (mode[k] == RIGID_AIRBORNE) continue;
-            int first = mode[k] == RIGID_STICK ? 0 : 2;
-            for (int c = first; c < 3; c++) {
-                int w = 3 * k + c;
-                for (int j = 0; j < nq; j++) {
-                    double cw = W[w + (size_t)j * ldw];
-                    C[m + (size_t)j * mmax] = cw;
-                    D[m + (size_t)j * mmax] = cw;
-                    if (mode[k] == RIGID_SLIP)
-                        D[m + (size_t)j * mmax] += p->mu * (dir[2 * k] * W[3 * k + (size_t)j * ldw] +
-                                                            dir[2 * k + 1] * W[3 * k + 1 + (size_t)j * ldw]);
-                }
-                double v = vc[w];
-                target[m] = c == 2 ? -2 * p->alpha * v - p->alpha * p->alpha * gap[k] : -2 * p->alpha * v;
-                row_contact[m] = k;
-                row_comp[m] = c;
-                m++;
+            double vx = vc[3 * k], vy = vc[3 * k + 1], vt = hypot(vx, vy);
+            if (mode[k] == RIGID_SLIP && vt > p->v_stick) {
+                dir[2 * k] = -vx / vt;
+                dir[2 * k + 1] = -vy / vt;
             }
         }
-        for (int i = 0; i < nq; i++) udot[i] = Xf[i];
-        memset(lambda, 0, sizeof(double) * 3 * (size_t)nc);
-        if (m == 0) return 0;   /* all airborne */
-
-        /* Dt = M^-1 D', A = C Dt, r = target - bias - C M^-1 f */
-        for (int i = 0; i < m; i++) {
-            double *col = Dt + (size_t)i * nq;
-            for (int j = 0; j < nq; j++) col[j] = D[i + (size_t)j * mmax];
-            linalg_lu_solve(nq, Mlu, piv, col);
-        }
-        double diag = 0;
-        for (int i = 0; i < m; i++) {
-            for (int j = 0; j < m; j++) {
-                double s = 0;
-                for (int l = 0; l < nq; l++) s += C[i + (size_t)l * mmax] * Dt[l + (size_t)j * nq];
-                A[i + (size_t)j * m] = s;
-            }
-            diag = fmax(diag, fabs(A[i + (size_t)i * m]));
-            int w = 3 * row_contact[i] + row_comp[i];
-            double cxf = 0;
-            for (int l = 0; l < nq; l++) cxf += C[i + (size_t)l * mmax] * Xf[l];
-            r[i] = target[i] - bias[w] - cxf;
-        }
-        for (int i = 0; i < m; i++) A[i + (size_t)i * m] += CFM * diag;
-        if (linalg_lu_factor(m, A, piv2)) {
-            snprintf(msg, msg_len, "rigid contact: singular contact system (%d constraint rows)", m);
+        if (lcp_solve(&s, mode, dir, udot, lambda, NULL)) {
+            snprintf(msg, msg_len, "rigid contact: singular contact system");
             return 1;
         }
-        memcpy(lam, r, sizeof(double) * m);
-        linalg_lu_solve(m, A, piv2, lam);
-        for (int i = 0; i < m; i++)
-            for (int j = 0; j < nq; j++) udot[j] += Dt[j + (size_t)i * nq] * lam[i];
-        for (int i = 0; i < m; i++) {
-            int k = row_contact[i];
-            lambda[3 * k + row_comp[i]] = lam[i];
-            if (mode[k] == RIGID_SLIP) {
-                lambda[3 * k] = p->mu * lam[i] * dir[2 * k];
-                lambda[3 * k + 1] = p->mu * lam[i] * dir[2 * k + 1];
-            }
-        }
-
-        if (!decide) return 0;
-        /* the decision tree: lift-off first (Eq. 64 no longer holds), then the friction cone (Eq. 66) */
-        int changed = 0;
-        for (int k = 0; k < nc; k++)
-            if (mode[k] != RIGID_AIRBORNE && lambda[3 * k + 2] < 0) {
-                mode[k] = RIGID_AIRBORNE;
-                changed = 1;
-            }
-        if (!changed)
-            for (int k = 0; k < nc; k++) {
-                if (mode[k] != RIGID_STICK) continue;
-                double fx = lambda[3 * k], fy = lambda[3 * k + 1], ft = hypot(fx, fy), fn = lambda[3 * k + 2];
-                if (ft > p->mu * fn) {
-                    mode[k] = RIGID_SLIP;      /* slide with the friction at its limit, along the sticking force */
-                    dir[2 * k] = ft > 0 ? fx / ft : 1;
-                    dir[2 * k + 1] = ft > 0 ? fy / ft : 0;
-                    changed = 1;
-                }
-            }
-        if (!changed) {
-            for (int k = 0; k < nc; k++)
-                if (mode[k] == RIGID_AIRBORNE) memset(lambda + 3 * k, 0, sizeof(double) * 3);
-            return 0;
-        }
+        return 0;
     }
-    snprintf(msg, msg_len, "rigid contact: no consistent stick/slip/airborne mode set after %d rounds",
-             max_rounds);
-    return 1;
+    /* the decision starts from the modes the state implies: a wheel farther than gap_tol from the ground is
+     * airborne, one on it sticks or slips by its sliding speed */
+    entry_modes(nc, vc, p, entry, entry_dir);
+    for (int k = 0; k < nc; k++) {
+        touching[k] = gap[k] <= p->gap_tol;
+        mode[k] = touching[k] ? entry[k] : RIGID_AIRBORNE;
+        dir[2 * k] = entry_dir[2 * k];
+        dir[2 * k + 1] = entry_dir[2 * k + 1];
+    }
+    return lcp_decide(&s, mode, dir, udot, lambda, y, msg, msg_len);
 }
 
-/* Wn_a Wn_b' (B = NULL) or Wn_a B Wn_b' with B = columns Y (B != NULL: Y[:, b] = M^-1 Wn_b') for the contacts in
- * act, into A (na x na), regularized: coinciding wheels (2D pairs) make it singular */
+/* Wn_a Y_b for the contacts in act, into A (na x na), with Y[:, b] = M^-1 Wn_b', regularized: coinciding wheels
+ * (2D pairs) make it singular */
 static void normal_gram(int nq, int ldw, const double *W, const int *act, int na, const double *Y, double *A) {
     double diag = 0;
     for (int a = 0; a < na; a++)
         for (int b = 0; b < na; b++) {
             double s = 0;
-            for (int j = 0; j < nq; j++)
-                s += W[3 * act[a] + 2 + (size_t)j * ldw] *
-                     (Y ? Y[j + (size_t)b * nq] : W[3 * act[b] + 2 + (size_t)j * ldw]);
+            for (int j = 0; j < nq; j++) s += W[3 * act[a] + 2 + (size_t)j * ldw] * Y[j + (size_t)b * nq];
             A[a + (size_t)b * na] = s;
             if (a == b) diag = fmax(diag, s);
         }
@@ -195,79 +386,100 @@ static int update_set(int nc, const double *gap, double gap_tol, const double *m
     return changed;
 }
 
-int rigid_project(int nq, int nc, double *q, double *u, const double *M, const double *W, const double *vc,
-                  const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
+/* positions: penetrating contacts back onto gap = 0 by the smallest step in the mass metric, dq = M^-1 Wn' m,
+ * m >= 0 (the displacement an impulse would cause: light parts move, the heavy body hardly; a step that is
+ * smallest in plain coordinates tilts the body and lifts the other wheels off, and they fall back and hop),
+ * with every touching contact the step would push into the ground held at gap = 0 too (simultaneously: fixing
+ * one wheel must not sink its neighbour); a wheel just above the ground may be lifting off and is left alone
+ * unless the step would push it in. Returns 1 if q changed, 0 if not, -1 on a singular system. */
+static int project_positions(int nq, int nc, double *q, const double *M, const double *W, const double *gap,
+                             const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
     const int ldw = 3 * nc;
-    double *A = work, *rhs = A + (size_t)nc * nc, *Mlu = rhs + nc, *Y = Mlu + (size_t)nq * nq;
-    double *step = Y + (size_t)nq * nc, *pred = step + nq;
+    double *Mlu = work, *Y = Mlu + (size_t)nq * nq, *A = Y + (size_t)nq * nc, *rhs = A + (size_t)nc * nc,
+           *step = rhs + nc, *pred = step + nq;
     int *piv = iwork, *act = piv + nq + nc, *member = act + nc;
-    int na = 0, changed = 0;
-
-    /* positions: penetrating contacts back onto gap = 0 by the minimum-norm step dq = -Wn' m, m >= 0, with
-     * every touching contact the step would push into the ground held at gap = 0 too (simultaneously: fixing
-     * one wheel must not sink its neighbour); a wheel just above the ground may be lifting off and is left
-     * alone unless the step would push it in */
+    int na = 0;
     memset(member, 0, sizeof(int) * (size_t)nc);
     for (int k = 0; k < nc; k++)
         if (gap[k] < -1e-13) act[na++] = k, member[k] = 1;
-    for (int round = 0; na > 0; round++) {
-        normal_gram(nq, ldw, W, act, na, NULL, A);
-        for (int a = 0; a < na; a++) rhs[a] = -gap[act[a]];
-        if (linalg_lu_factor(na, A, piv)) {
-            snprintf(msg, msg_len, "rigid contact: singular position projection");
-            return -1;
-        }
-        linalg_lu_solve(na, A, piv, rhs);
-        for (int j = 0; j < nq; j++) {
-            double s = 0;
-            for (int a = 0; a < na; a++) s += W[3 * act[a] + 2 + (size_t)j * ldw] * rhs[a];
-            step[j] = s;                                   /* dq = Wn' m: m > 0 lifts */
-        }
-        for (int k = 0; k < nc; k++) pred[k] = gap[k] + row_dot(W, ldw, 3 * k + 2, step, nq);
-        /* the set may cycle on degenerate geometry: after 2 nc + 1 rounds take the last step as it is */
-        if (round >= 2 * nc || !update_set(nc, gap, p->gap_tol, rhs, pred, act, &na, member)) {
-            for (int j = 0; j < nq; j++) q[j] += step[j];
-            changed = 1;
-            break;
-        }
-    }
-
-    /* velocities: inelastic impact of the approaching contacts, L >= 0 with Wn (u + du) = 0 on the impact set;
-     * touching contacts the impulse would drive into the ground join the set (the impact is simultaneous),
-     * contacts that would need a pulling impulse leave it */
-    na = 0;
-    memset(member, 0, sizeof(int) * (size_t)nc);
-    for (int k = 0; k < nc; k++)
-        if (gap[k] <= p->gap_tol && vc[3 * k + 2] < 0) act[na++] = k, member[k] = 1;
-    if (na == 0) return changed;
+    if (na == 0) return 0;
     memcpy(Mlu, M, sizeof(double) * (size_t)nq * nq);
     if (linalg_lu_factor(nq, Mlu, piv)) {
         snprintf(msg, msg_len, "rigid contact: the mass matrix is singular");
         return -1;
     }
-    for (int round = 0; round <= 2 * nc && na > 0; round++) {
+    for (int round = 0; na > 0; round++) {
         for (int a = 0; a < na; a++) {
             double *col = Y + (size_t)a * nq;
             for (int j = 0; j < nq; j++) col[j] = W[3 * act[a] + 2 + (size_t)j * ldw];
             linalg_lu_solve(nq, Mlu, piv, col);
         }
         normal_gram(nq, ldw, W, act, na, Y, A);
-        for (int a = 0; a < na; a++) rhs[a] = -row_dot(W, ldw, 3 * act[a] + 2, u, nq);
+        for (int a = 0; a < na; a++) rhs[a] = -gap[act[a]];
         if (linalg_lu_factor(na, A, piv + nq)) {
-            snprintf(msg, msg_len, "rigid contact: singular impact system");
+            snprintf(msg, msg_len, "rigid contact: singular position projection");
             return -1;
         }
         linalg_lu_solve(na, A, piv + nq, rhs);
         for (int j = 0; j < nq; j++) {
             double s = 0;
             for (int a = 0; a < na; a++) s += Y[j + (size_t)a * nq] * rhs[a];
-            step[j] = s;
+            step[j] = s;                                   /* dq = M^-1 Wn' m: m > 0 lifts */
         }
-        for (int k = 0; k < nc; k++) pred[k] = vc[3 * k + 2] + row_dot(W, ldw, 3 * k + 2, step, nq);
-        if (!update_set(nc, gap, p->gap_tol, rhs, pred, act, &na, member)) {
-            for (int j = 0; j < nq; j++) u[j] += step[j];
+        for (int k = 0; k < nc; k++) pred[k] = gap[k] + row_dot(W, ldw, 3 * k + 2, step, nq);
+        /* the set may cycle on degenerate geometry: after 2 nc + 1 rounds take the last step as it is */
+        if (round >= 2 * nc || !update_set(nc, gap, p->gap_tol, rhs, pred, act, &na, member)) {
+            for (int j = 0; j < nq; j++) q[j] += step[j];
             return 1;
         }
     }
-    return changed;
+    return 0;
+}
+
+int rigid_project(int nq, int nc, double *q, double *u, const double *M, const double *W, const double *vc,
+                  const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
+    int changed = project_positions(nq, nc, q, M, W, gap, p, work, iwork, msg, msg_len);
+    if (changed < 0) return -1;
+
+    /* velocities: an inelastic impact with Coulomb friction when a touching wheel approaches the ground. The
+     * impulses solve the same complementarity problem as the forces, one level down (M du = W' L, the
+     * constraint values are the post-impact contact velocities, target 0): every touching wheel starts sticking
+     * (the impact stops its contact point), a wheel that would need a pulling impulse leaves the impact, a
+     * sticking impulse outside the cone mu L_n slides at the cone. A frictionless impact would let a wheel that
+     * hits a steep face glance off it and hop, where a real wheel grips and climbs. */
+    int approaching = 0;
+    for (int k = 0; k < nc; k++)
+        if (gap[k] <= p->gap_tol && vc[3 * k + 2] < 0) approaching = 1;
+    if (!approaching) return changed;
+    double *Mlu = work, *zero = Mlu + (size_t)nq * nq, *zero_target = zero + nq, *du = zero_target + 3 * nc,
+           *L = du + nq, *y = L + 3 * nc, *dir = y + 3 * nc, *entry_dir = dir + 2 * nc, *scratch = entry_dir + 2 * nc;
+    int *piv = iwork, *touching = piv + nq, *entry = touching + nc, *mode = entry + nc, *iscratch = mode + nc;
+    memcpy(Mlu, M, sizeof(double) * (size_t)nq * nq);
+    if (linalg_lu_factor(nq, Mlu, piv)) {
+        snprintf(msg, msg_len, "rigid contact: the mass matrix is singular");
+        return -1;
+    }
+    memset(zero, 0, sizeof(double) * nq);
+    memset(zero_target, 0, sizeof(double) * 3 * (size_t)nc);
+    contact_lcp s = {.nq = nq, .nc = nc, .Mlu = Mlu, .piv = piv, .x0 = zero, .W = W, .bias = vc,
+                     .target = zero_target, .mu = p->mu, .touching = touching, .entry = entry,
+                     .entry_dir = entry_dir};
+    lcp_scratch(&s, scratch, iscratch);
+    for (int k = 0; k < nc; k++) {
+        touching[k] = gap[k] <= p->gap_tol;
+        entry[k] = RIGID_STICK;
+        entry_dir[2 * k] = 1;
+        entry_dir[2 * k + 1] = 0;
+        mode[k] = touching[k] ? RIGID_STICK : RIGID_AIRBORNE;
+        dir[2 * k] = 1;
+        dir[2 * k + 1] = 0;
+    }
+    find_aliases(&s, gap);
+    char why[160];
+    if (lcp_decide(&s, mode, dir, du, L, y, why, sizeof why)) {
+        snprintf(msg, msg_len, "impact: %s", why);
+        return -1;
+    }
+    for (int j = 0; j < nq; j++) u[j] += du[j];
+    return 1;
 }

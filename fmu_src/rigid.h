@@ -15,18 +15,19 @@ typedef struct {
 } rigid_params;
 
 /* workspace sizes as constant expressions (for static arrays) and as functions */
-#define RIGID_WORK(nq, nc) ((nq) * (nq) + (nq) + 9 * (nc) * (nq) + 9 * (nc) * (nc) + 9 * (nc) + 2 * (nc))
-#define RIGID_IWORK(nq, nc) ((nq) + 9 * (nc))
+#define RIGID_WORK(nq, nc) ((nq) * (nq) + 2 * (nq) + 9 * (nc) * (nq) + 9 * (nc) * (nc) + 24 * (nc))
+#define RIGID_IWORK(nq, nc) ((nq) + 16 * (nc))
 size_t rigid_workspace_size(int nq, int nc);   /* doubles */
 size_t rigid_iworkspace_size(int nq, int nc);  /* ints */
 
 /* Accelerations udot and contact forces lambda (per contact: Fx, Fy, Fn in the contact frame) for
  * M udot = f + W' lambda.
  * decide != 0, the decision tree: start from the modes the state implies (gap > gap_tol: airborne;
- * |v_t| <= v_stick: stick; else slip), solve, switch contacts with a negative normal force to airborne and
- * sticking contacts outside the friction cone to slipping (force along the sticking force), and solve again; at
- * most 4 nc + 4 rounds. mode and dir (2 per contact: a slipping contact's friction direction in the contact
- * frame's x-y) are outputs.
+ * |v_t| <= v_stick: stick; else slip against the sliding), solve, and switch one contact at a time (lowest index
+ * first) until the modes are consistent: a contact whose normal force would pull leaves the ground, a touching
+ * airborne contact that would be accelerated into the ground enters it, a sticking contact outside the friction
+ * cone slips with its friction at the limit along the sticking force; at most 8 nc + 8 switches. mode and dir
+ * (2 per contact: a slipping contact's friction direction in the contact frame's x-y) are outputs.
  * decide == 0: one solve with the given modes, no switching (what an integration step uses between decisions);
  * a slipping contact's friction follows its current sliding direction while it slides faster than v_stick.
  * Returns 0, or 1 with the reason in msg. */
@@ -35,9 +36,11 @@ int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const do
                       double *dir, double *udot, double *lambda, double *work, int *iwork, char *msg,
                       size_t msg_len);
 
-/* Post-step stabilization: penetrating contacts (gap < 0) are moved onto gap = 0
- * (minimum-norm Gauss-Newton step dq = -Wn' (Wn Wn')^-1 gap, using dgap/dq = Wn since qdot = u), and an
- * inelastic impact for contacts approaching the ground (v_n < 0): u += M^-1 Wn' L with Wn (u + du) = 0, L >= 0.
+/* Post-step stabilization: penetrating contacts (gap < 0) are moved onto gap = 0 (minimum-norm Gauss-Newton step
+ * dq = -Wn' (Wn Wn')^-1 gap over the penetrating and pushed-in touching contacts, using dgap/dq = Wn since
+ * qdot = u), and, when a touching contact approaches the ground (v_n < 0), an inelastic impact with Coulomb
+ * friction over all touching contacts: M du = W' L, the same decision as the forces' on the post-impact contact
+ * velocities (stick: W (u + du) = 0; slip: normal row, |L_t| = mu L_n; no pulling impulse).
  * q, u are modified in place; returns 1 if anything changed, 0 if not, -1 on a singular system (msg). */
 int rigid_project(int nq, int nc, double *q, double *u, const double *M, const double *W, const double *vc,
                   const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len);
