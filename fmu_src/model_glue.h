@@ -21,6 +21,9 @@ void model_clear_message(model_ws *ws);
 int model_rhs(void *ctx, double t, const double *x, double *xdot);
 int model_jac(void *ctx, double t, const double *x, const double *xdot, double *jac);
 
+/* step-acceptance callback (solver.h): rigid contact touch-down location; accepts every step of compliant
+ * models */
+double model_accept_step(void *ctx, double t, const double *x, double t_new, const double *x_new);
 /* post-step callback (solver.h): rigid contact projection; does nothing for compliant models */
 int model_post_step(void *ctx, double t, double *x);
 

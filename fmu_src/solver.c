@@ -302,7 +302,7 @@ static double initial_step(int n, const double *x, double t, const double *f0, d
 }
 
 static int adaptive(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
-                    solver_jac_fn jac, solver_post_fn post, void *ctx, double *w, solver_stats *st, char *msg,
+                    solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx, double *w, solver_stats *st, char *msg,
                     size_t msg_len) {
     const int dopri = s->method == SOLVER_DOPRI5;
     const char *name = dopri ? "dopri5" : "rodas4";
@@ -385,6 +385,22 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
             continue;
         }
 
+        if (accept) {
+            double factor = accept(ctx, t, x, tend, xnew);
+            if (factor < 0) {
+                put_msg(msg, msg_len, "%s: the step check failed at t = %.15g", name, tend);
+                return 1;
+            }
+            if (factor < 1) {             /* an event inside the step: retry a shorter one, no error feedback */
+                st->rejected++;
+                rejected_last = 1;
+                last_ev = 0;
+                h = hs * fmax(0.01, factor);
+                if (h < hmin) goto underflow;
+                continue;
+            }
+        }
+
         /* accepted: propose the next step */
         double q;   /* h / h_new */
         if (dopri) {
@@ -431,11 +447,11 @@ underflow:
 
 int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
                      solver_jac_fn jac, void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len) {
-    return solver_integrate_post(s, n, x, t0, t1, rhs, jac, NULL, ctx, work, stats, msg, msg_len);
+    return solver_integrate_post(s, n, x, t0, t1, rhs, jac, NULL, NULL, ctx, work, stats, msg, msg_len);
 }
 
 int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
-                          solver_jac_fn jac, solver_post_fn post, void *ctx, double *work, solver_stats *stats,
+                          solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx, double *work, solver_stats *stats,
                           char *msg, size_t msg_len) {
     static const char *const names[SOLVER_N_METHODS] = {"rk4", "dopri5", "rodas4"};
     if (msg && msg_len) msg[0] = '\0';
@@ -462,5 +478,5 @@ int solver_integrate_post(const solver_settings *s, int n, double *x, double t0,
     }
     if (n <= 0 || t1 == t0) return 0;   /* nothing to integrate */
     if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, post, ctx, work, stats, msg, msg_len);
-    return adaptive(s, n, x, t0, t1, rhs, jac, post, ctx, work, stats, msg, msg_len);
+    return adaptive(s, n, x, t0, t1, rhs, jac, accept, post, ctx, work, stats, msg, msg_len);
 }

@@ -19,6 +19,12 @@ typedef int (*solver_jac_fn)(void *ctx, double t, const double *x, const double 
  * solver then re-evaluates F at x), negative on failure (the reason in the callback's context). */
 typedef int (*solver_post_fn)(void *ctx, double t, double *x);
 
+/* Called by the adaptive methods before they accept a step from (t, x) to (t_new, x_new) that passed the error
+ * test: returns 1 to accept it, or a factor in (0, 1) to reject it and retry with the step size times that
+ * factor (an event inside the step that must be located, e.g. a wheel that would land deep in the ground).
+ * Negative on failure (the reason in the callback's context). RK4, a fixed-step method, does not call it. */
+typedef double (*solver_accept_fn)(void *ctx, double t, const double *x, double t_new, const double *x_new);
+
 typedef struct {
     int method;        /* enum solver_method */
     double tol;        /* relative and absolute tolerance of the adaptive methods */
@@ -39,9 +45,9 @@ size_t solver_workspace_size(int method, int n);
 int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1,
                      solver_rhs_fn rhs, solver_jac_fn jac, void *ctx,
                      double *work, solver_stats *stats, char *msg, size_t msg_len);
-/* the same, with a post-step callback (NULL: none) */
+/* the same, with a step-acceptance and a post-step callback (each NULL: none) */
 int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1,
-                          solver_rhs_fn rhs, solver_jac_fn jac, solver_post_fn post, void *ctx,
+                          solver_rhs_fn rhs, solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx,
                           double *work, solver_stats *stats, char *msg, size_t msg_len);
 
 #endif
