@@ -285,8 +285,7 @@ int model_post_step(void *ctx, double t, double *x) {
     int r = 0;
     for (int it = 0; it < 30; it++) {    /* Gauss-Newton on the gaps: stop when no contact penetrates */
         if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
-        int rk = rigid_project(NQ, NC, x, x + NQ, ws->Mraw, ws->W, ws->vc, ws->gap, &p, ws->rwork, ws->riwork,
-                               why, sizeof why);
+        int rk = rigid_project(NQ, NC, x, ws->Mraw, ws->W, ws->gap, &p, ws->rwork, ws->riwork, why, sizeof why);
         if (rk < 0) {
             snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
             return rk;
@@ -294,18 +293,14 @@ int model_post_step(void *ctx, double t, double *x) {
         if (rk == 0) break;
         r = 1;
     }
-#ifdef RIGID_DEBUG
-    if (t > 9.8 && t < 9.83) {
-        eval_rigid_terms(ws, x, x + NQ, t);
-        fprintf(stderr, "POST t=%.6f gap", t);
-        for (int k = 0; k < NC; k++) fprintf(stderr, " %.3g", ws->gap[k]);
-        fprintf(stderr, " vn");
-        for (int k = 0; k < NC; k++) fprintf(stderr, " %.3g", ws->vc[3 * k + 2]);
-        fprintf(stderr, " vt");
-        for (int k = 0; k < NC; k++) fprintf(stderr, " %.3g", ws->vc[3 * k]);
-        fprintf(stderr, "\n");
+    if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
+    int ri = rigid_impact(NQ, NC, x + NQ, ws->Mraw, ws->W, ws->vc, ws->gap, &p, ws->rwork, ws->riwork, why,
+                          sizeof why);
+    if (ri < 0) {
+        snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
+        return ri;
     }
-#endif
+    r |= ri;
     int d = rigid_decide(ws, x, t);
     if (d < 0) return -1;
     return r || d;     /* a new mode set changes F at x: the solver must not reuse F (FSAL) */

@@ -16,6 +16,9 @@
  * are far above the round-off of the solves and far below anything physical. */
 #define FORCE_TOL 1e-9
 #define VALUE_TOL 1e-8
+/* a touching wheel approaching the ground faster than this (m/s) starts an impact; slower approach is round-off
+ * and Baumgarte's business */
+#define IMPACT_SPEED 1e-9
 
 size_t rigid_workspace_size(int nq, int nc) { return (size_t)RIGID_WORK(nq, nc); }
 
@@ -436,11 +439,13 @@ static int project_positions(int nq, int nc, double *q, const double *M, const d
     return 0;
 }
 
-int rigid_project(int nq, int nc, double *q, double *u, const double *M, const double *W, const double *vc,
-                  const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
-    int changed = project_positions(nq, nc, q, M, W, gap, p, work, iwork, msg, msg_len);
-    if (changed < 0) return -1;
+int rigid_project(int nq, int nc, double *q, const double *M, const double *W, const double *gap,
+                  const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
+    return project_positions(nq, nc, q, M, W, gap, p, work, iwork, msg, msg_len);
+}
 
+int rigid_impact(int nq, int nc, double *u, const double *M, const double *W, const double *vc, const double *gap,
+                 const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
     /* velocities: an inelastic impact with Coulomb friction when a touching wheel approaches the ground. The
      * impulses solve the same complementarity problem as the forces, one level down (M du = W' L, the
      * constraint values are the post-impact contact velocities, target 0): every touching wheel starts sticking
@@ -449,8 +454,8 @@ int rigid_project(int nq, int nc, double *q, double *u, const double *M, const d
      * hits a steep face glance off it and hop, where a real wheel grips and climbs. */
     int approaching = 0;
     for (int k = 0; k < nc; k++)
-        if (gap[k] <= p->gap_tol && vc[3 * k + 2] < 0) approaching = 1;
-    if (!approaching) return changed;
+        if (gap[k] <= p->gap_tol && vc[3 * k + 2] < -IMPACT_SPEED) approaching = 1;
+    if (!approaching) return 0;
     double *Mlu = work, *zero = Mlu + (size_t)nq * nq, *zero_target = zero + nq, *du = zero_target + 3 * nc,
            *L = du + nq, *y = L + 3 * nc, *dir = y + 3 * nc, *entry_dir = dir + 2 * nc, *scratch = entry_dir + 2 * nc;
     int *piv = iwork, *touching = piv + nq, *entry = touching + nc, *mode = entry + nc, *iscratch = mode + nc;

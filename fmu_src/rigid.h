@@ -36,13 +36,18 @@ int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const do
                       double *dir, double *udot, double *lambda, double *work, int *iwork, char *msg,
                       size_t msg_len);
 
-/* Post-step stabilization: penetrating contacts (gap < 0) are moved onto gap = 0 (minimum-norm Gauss-Newton step
- * dq = -Wn' (Wn Wn')^-1 gap over the penetrating and pushed-in touching contacts, using dgap/dq = Wn since
- * qdot = u), and, when a touching contact approaches the ground (v_n < 0), an inelastic impact with Coulomb
- * friction over all touching contacts: M du = W' L, the same decision as the forces' on the post-impact contact
- * velocities (stick: W (u + du) = 0; slip: normal row, |L_t| = mu L_n; no pulling impulse).
- * q, u are modified in place; returns 1 if anything changed, 0 if not, -1 on a singular system (msg). */
-int rigid_project(int nq, int nc, double *q, double *u, const double *M, const double *W, const double *vc,
-                  const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len);
+/* Post-step stabilization, positions: penetrating contacts (gap < 0) are moved onto gap = 0 by the smallest step
+ * in the mass metric, dq = M^-1 Wn' m, m >= 0, over the penetrating contacts and the touching ones the step would
+ * push in (using dgap/dq = Wn since qdot = u). q is modified in place; returns 1 if it changed, 0 if not, -1 on
+ * a singular system (msg). */
+int rigid_project(int nq, int nc, double *q, const double *M, const double *W, const double *gap,
+                  const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len);
+
+/* Post-step stabilization, velocities: when a touching contact approaches the ground (v_n < 0), an inelastic
+ * impact with Coulomb friction over all touching contacts: M du = W' L, decided like the forces on the
+ * post-impact contact velocities (stick: W (u + du) = 0; slip: normal row, |L_t| = mu L_n; no pulling impulse).
+ * u is modified in place; returns 1 if it changed, 0 if not, -1 if no consistent impact was found (msg). */
+int rigid_impact(int nq, int nc, double *u, const double *M, const double *W, const double *vc, const double *gap,
+                 const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len);
 
 #endif
