@@ -205,8 +205,9 @@ static int all_consistent(const contact_lcp *s, const int *mode, const double *d
 
 /* The last resort when switching cycles (friction can make the problem non-monotone, Painleve): every mode set
  * of the touching contacts, stick before slip before airborne (so the first consistent one keeps the most
- * contact and grip). A slip starting from rest slides against the force that held it in the all-stick
- * solution. Returns 0 with the modes set, or 1. */
+ * contact and grip). A contact sliding slips against its sliding; one at rest may start to slide either way
+ * along the force that held it in the all-stick solution (in the plane that is every direction there is).
+ * Returns 0 with the modes set, or 1. */
 static int lcp_enumerate(const contact_lcp *s, int *mode, double *dir, double *x, double *lambda, double *y) {
     const int nc = s->nc;
     int n = 0;
@@ -224,17 +225,20 @@ static int lcp_enumerate(const contact_lcp *s, int *mode, double *dir, double *x
         s->stick_dir[2 * k + 1] = sliding ? s->entry_dir[2 * k + 1] : ft > 0 ? fy / ft : 0;
     }
     long total = 1;
-    for (int i = 0; i < n; i++) total *= 3;
-    static const int order[3] = {RIGID_STICK, RIGID_SLIP, RIGID_AIRBORNE};
+    for (int i = 0; i < n; i++) total *= 4;
+    /* per contact: stick, slip along stick_dir, slip against it (contacts at rest only), airborne */
     for (long code = 0; code < total; code++) {
         long c = code;
-        for (int i = 0; i < n; i++, c /= 3) {
-            int k = s->idx[i];
-            s->try_mode[k] = order[c % 3];
-            s->try_dir[2 * k] = s->stick_dir[2 * k];
-            s->try_dir[2 * k + 1] = s->stick_dir[2 * k + 1];
+        int skip = 0;
+        for (int i = 0; i < n; i++, c /= 4) {
+            int k = s->idx[i], choice = (int)(c % 4);
+            double sign = choice == 2 ? -1 : 1;
+            if (choice == 2 && s->entry[k] == RIGID_SLIP) skip = 1;   /* a sliding contact has one direction */
+            s->try_mode[k] = choice == 0 ? RIGID_STICK : choice == 3 ? RIGID_AIRBORNE : RIGID_SLIP;
+            s->try_dir[2 * k] = sign * s->stick_dir[2 * k];
+            s->try_dir[2 * k + 1] = sign * s->stick_dir[2 * k + 1];
         }
-        if (lcp_solve(s, s->try_mode, s->try_dir, x, lambda, y)) continue;
+        if (skip || lcp_solve(s, s->try_mode, s->try_dir, x, lambda, y)) continue;
         if (all_consistent(s, s->try_mode, s->try_dir, lambda, y)) {
             memcpy(mode, s->try_mode, sizeof(int) * (size_t)nc);
             memcpy(dir, s->try_dir, sizeof(double) * 2 * (size_t)nc);
