@@ -732,8 +732,8 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint, fm
     memcpy(c->x_save, s->x, sizeof(double) * NX);
     c->msg[0] = '\0';
     model_clear_message(c->ws);
-    if (solver_integrate_post(&s->solver, NX, s->x, t, t + h, model_rhs, model_jac, model_accept_step, model_post_step, c->ws,
-                              c->work, &s->stats, c->msg, sizeof c->msg))
+    if (solver_integrate_post(&s->solver, NX, s->x, t, t + h, model_rhs, model_jac, model_accept_step,
+                              model_post_step, c->ws, c->work, &s->stats, c->msg, sizeof c->msg))
     {
         char why[2 * MSG_LEN];
         const char *m = model_message(c->ws);

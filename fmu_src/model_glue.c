@@ -259,13 +259,16 @@ double model_accept_step(void *ctx, double t, const double *x, double t_new, con
     }
     if (!deep) return 1;
     if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
-    double factor = 0.9;
+    double factor = 1;
     for (int k = 0; k < NC; k++) {
-        if (!(gap_new[k] < -PEN_TOL)) continue;
-        double g0 = ws->gap[k];   /* a wheel above the ground at the start: aim just past its crossing */
-        factor = fmin(factor, g0 > 0 ? (g0 + 0.5 * PEN_TOL) / (g0 - gap_new[k]) : 0.5);
+        double g0 = ws->gap[k];
+        /* a wheel already that deep at the start (a start pose in the ground) is left to the projection: no
+         * shorter step would help it */
+        if (!(gap_new[k] < -PEN_TOL) || g0 < -PEN_TOL) continue;
+        /* a wheel above the ground at the start: aim just past its crossing; one on it: halve */
+        factor = fmin(factor, fmin(0.9, g0 > 0 ? (g0 + 0.5 * PEN_TOL) / (g0 - gap_new[k]) : 0.5));
     }
-    return fmax(factor, 0.01);
+    return factor < 1 ? fmax(factor, 0.01) : 1;
 #else
     (void)ctx;
     (void)t;

@@ -17,7 +17,7 @@
 #define FAIL_SHRINK 0.25    /* h_new/h after a failed evaluation: the step left the region where F is defined */
 #define PI_BETA 0.04        /* Hairer's DOPRI5 PI controller (stabilizes h on the stability boundary) */
 
-enum { EV_OK = 0, EV_FAILED, EV_NONFINITE, EV_JAC_FAILED, EV_JAC_NONFINITE, EV_SINGULAR };
+enum { EV_OK = 0, EV_FAILED, EV_NONFINITE, EV_JAC_FAILED, EV_JAC_NONFINITE, EV_SINGULAR, EV_EVENT };
 
 static const char *ev_reason(int ev) {
     switch (ev) {
@@ -26,6 +26,7 @@ static const char *ev_reason(int ev) {
     case EV_JAC_FAILED: return "the Jacobian failed";
     case EV_JAC_NONFINITE: return "non-finite Jacobian";
     case EV_SINGULAR: return "singular iteration matrix W";
+    case EV_EVENT: return "an event inside the step (the step check)";
     default: return "error test failed";
     }
 }
@@ -302,8 +303,8 @@ static double initial_step(int n, const double *x, double t, const double *f0, d
 }
 
 static int adaptive(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
-                    solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx, double *w, solver_stats *st, char *msg,
-                    size_t msg_len) {
+                    solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx, double *w,
+                    solver_stats *st, char *msg, size_t msg_len) {
     const int dopri = s->method == SOLVER_DOPRI5;
     const char *name = dopri ? "dopri5" : "rodas4";
     /* The error estimate is O(h^(q+1)), q the lower of the two orders: 4 for DOPRI5, 3 for RODAS4. */
@@ -394,7 +395,7 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
             if (factor < 1) {             /* an event inside the step: retry a shorter one, no error feedback */
                 st->rejected++;
                 rejected_last = 1;
-                last_ev = 0;
+                last_ev = EV_EVENT;
                 h = hs * fmax(0.01, factor);
                 if (h < hmin) goto underflow;
                 continue;
@@ -451,8 +452,8 @@ int solver_integrate(const solver_settings *s, int n, double *x, double t0, doub
 }
 
 int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
-                          solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx, double *work, solver_stats *stats,
-                          char *msg, size_t msg_len) {
+                          solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx,
+                          double *work, solver_stats *stats, char *msg, size_t msg_len) {
     static const char *const names[SOLVER_N_METHODS] = {"rk4", "dopri5", "rodas4"};
     if (msg && msg_len) msg[0] = '\0';
     if (s->method < 0 || s->method >= SOLVER_N_METHODS) {

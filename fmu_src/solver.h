@@ -47,7 +47,7 @@ int solver_integrate(const solver_settings *s, int n, double *x, double t0, doub
                      double *work, solver_stats *stats, char *msg, size_t msg_len);
 /* the same, with a step-acceptance and a post-step callback (each NULL: none) */
 int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1,
-                          solver_rhs_fn rhs, solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx,
-                          double *work, solver_stats *stats, char *msg, size_t msg_len);
+                          solver_rhs_fn rhs, solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post,
+                          void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len);
 
 #endif
