@@ -24,10 +24,13 @@ size_t rigid_iworkspace_size(int nq, int nc);  /* ints */
  * M udot = f + W' lambda.
  * decide != 0, the decision tree: start from the modes the state implies (gap > gap_tol: airborne;
  * |v_t| <= v_stick: stick; else slip against the sliding), solve, and switch one contact at a time (lowest index
- * first) until the modes are consistent: a contact whose normal force would pull leaves the ground, a touching
- * airborne contact that would be accelerated into the ground enters it, a sticking contact outside the friction
- * cone slips with its friction at the limit along the sticking force; at most 8 nc + 8 switches. mode and dir
- * (2 per contact: a slipping contact's friction direction in the contact frame's x-y) are outputs.
+ * first) until the modes are consistent: a sticking contact whose normal force would pull slips, a slipping one
+ * leaves the ground; a touching airborne contact that would be accelerated into the ground enters it; a sticking
+ * contact outside the friction cone slips with its friction at the limit along the sticking force; one slipping
+ * from rest along its own friction sticks again. After 4 nc + 4 switches every mode set of the touching contacts
+ * is tried (rigid.c, lcp_enumerate). Contacts that are the same contact twice (the 2D bogie pairs) are solved as
+ * one and share its force. mode and dir (2 per contact: a slipping contact's friction direction in the contact
+ * frame's x-y) are outputs.
  * decide == 0: one solve with the given modes, no switching (what an integration step uses between decisions);
  * a slipping contact's friction follows its current sliding direction while it slides faster than v_stick.
  * Returns 0, or 1 with the reason in msg. */
