@@ -194,8 +194,12 @@ static rigid_params rigid_settings(const model_ws *ws) {
 }
 
 /* cedra_M (unfactored, into Mraw), cedra_f, cedra_contact at (q, u) */
-static int eval_rigid_terms(model_ws *ws, const double *q, const double *u, double t) {
-    if (eval_M_f(ws, q, u, t, ws->Mraw)) return 1;
+/* cedra_contact at (q, u): W, bias, vc, gap */
+static int eval_contact(model_ws *ws, const double *q, const double *u, double t) {
+    ws->arg[0] = q;
+    ws->arg[1] = u;
+    ws->arg[2] = ws->inp;
+    ws->arg[3] = ws->par;
     ws->res[0] = ws->W;
     ws->res[1] = ws->bias;
     ws->res[2] = ws->vc;
@@ -205,6 +209,10 @@ static int eval_rigid_terms(model_ws *ws, const double *q, const double *u, doub
         return 1;
     }
     return 0;
+}
+
+static int eval_rigid_terms(model_ws *ws, const double *q, const double *u, double t) {
+    return eval_M_f(ws, q, u, t, ws->Mraw) || eval_contact(ws, q, u, t);
 }
 
 /* Accelerations and contact forces. As in the paper, the decision tree runs once per time step: decide != 0
@@ -252,13 +260,13 @@ double model_accept_step(void *ctx, double t, const double *x, double t_new, con
     activate(ws);
     double gap_new[NC];
     int deep = 0;
-    if (eval_rigid_terms(ws, x_new, x_new + NQ, t_new)) return -1;
+    if (eval_contact(ws, x_new, x_new + NQ, t_new)) return -1;     /* only the gaps are needed */
     for (int k = 0; k < NC; k++) {
         gap_new[k] = ws->gap[k];
         deep |= gap_new[k] < -PEN_TOL;
     }
     if (!deep) return 1;
-    if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
+    if (eval_contact(ws, x, x + NQ, t)) return -1;
     double factor = 1;
     for (int k = 0; k < NC; k++) {
         double g0 = ws->gap[k];
@@ -268,7 +276,7 @@ double model_accept_step(void *ctx, double t, const double *x, double t_new, con
         /* a wheel above the ground at the start: aim just past its crossing; one on it: halve */
         factor = fmin(factor, fmin(0.9, g0 > 0 ? (g0 + 0.5 * PEN_TOL) / (g0 - gap_new[k]) : 0.5));
     }
-    return factor < 1 ? fmax(factor, 0.01) : 1;
+    return factor;                /* the solver bounds how far a step shrinks */
 #else
     (void)ctx;
     (void)t;

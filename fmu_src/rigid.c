@@ -30,6 +30,23 @@ static double row_dot(const double *W, int ldw, int row, const double *x, int nq
     return s;
 }
 
+/* Mlu, piv := the LU factors of M; 0, or 1 with the reason in msg */
+static int factor_mass(int nq, const double *M, double *Mlu, int *piv, char *msg, size_t msg_len) {
+    memcpy(Mlu, M, sizeof(double) * (size_t)nq * nq);
+    if (linalg_lu_factor(nq, Mlu, piv)) {
+        snprintf(msg, msg_len, "rigid contact: the mass matrix is singular");
+        return 1;
+    }
+    return 0;
+}
+
+/* the unit direction of contact k's tangential force in lambda, (1, 0) where it is zero */
+static void tangential_dir(const double *lambda, int k, double *d) {
+    double fx = lambda[3 * k], fy = lambda[3 * k + 1], ft = hypot(fx, fy);
+    d[0] = ft > 0 ? fx / ft : 1;
+    d[1] = ft > 0 ? fy / ft : 0;
+}
+
 /* The linear complementarity problem of one decision, for accelerations (M udot = f + W' lambda: x0 = M^-1 f,
  * bias = dW/dt u, target = the Baumgarte-stabilized constraint accelerations) or for an impact (M du = W' L:
  * x0 = 0, bias = the contact velocities, target = 0). For every contact row, y = W x + bias is the constraint
@@ -219,10 +236,8 @@ static int lcp_enumerate(const contact_lcp *s, int *mode, double *dir, double *x
     }
     if (lcp_solve(s, s->try_mode, s->try_dir, x, lambda, y)) return 1;
     for (int k = 0; k < nc; k++) {
-        double fx = lambda[3 * k], fy = lambda[3 * k + 1], ft = hypot(fx, fy);
-        int sliding = s->entry[k] == RIGID_SLIP;
-        s->stick_dir[2 * k] = sliding ? s->entry_dir[2 * k] : ft > 0 ? fx / ft : 1;
-        s->stick_dir[2 * k + 1] = sliding ? s->entry_dir[2 * k + 1] : ft > 0 ? fy / ft : 0;
+        if (s->entry[k] == RIGID_SLIP) memcpy(s->stick_dir + 2 * k, s->entry_dir + 2 * k, 2 * sizeof(double));
+        else tangential_dir(lambda, k, s->stick_dir + 2 * k);
     }
     long total = 1;
     for (int i = 0; i < n; i++) total *= 4;
@@ -275,11 +290,10 @@ static int lcp_decide(const contact_lcp *s, int *mode, double *dir, double *x, d
             }
         if (flip < 0) return 0;
         const int k = flip;
-        double fx = lambda[3 * k], fy = lambda[3 * k + 1], ft = hypot(fx, fy);
-        if ((v == PULLS && mode[k] == RIGID_STICK && ft > 0) || v == OUTSIDE_CONE) {
+        const int held = hypot(lambda[3 * k], lambda[3 * k + 1]) > 0;   /* a tangential force holds it */
+        if ((v == PULLS && mode[k] == RIGID_STICK && held) || v == OUTSIDE_CONE) {
             mode[k] = RIGID_SLIP;
-            dir[2 * k] = ft > 0 ? fx / ft : 1;
-            dir[2 * k + 1] = ft > 0 ? fy / ft : 0;
+            tangential_dir(lambda, k, dir + 2 * k);
         } else if (v == PULLS) {
             mode[k] = RIGID_AIRBORNE;
         } else if (v == SINKS) {
@@ -318,11 +332,7 @@ int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const do
                      .target = target, .mu = p->mu, .touching = touching, .entry = entry, .entry_dir = entry_dir};
     lcp_scratch(&s, scratch, iscratch);
 
-    memcpy(Mlu, M, sizeof(double) * (size_t)nq * nq);
-    if (linalg_lu_factor(nq, Mlu, piv)) {
-        snprintf(msg, msg_len, "rigid contact: the mass matrix is singular");
-        return 1;
-    }
+    if (factor_mass(nq, M, Mlu, piv, msg, msg_len)) return 1;
     memcpy(x0, f, sizeof(double) * nq);
     linalg_lu_solve(nq, Mlu, piv, x0);
     for (int k = 0; k < nc; k++) {       /* Baumgarte: gap'' + 2 alpha gap' + alpha^2 gap = 0, v_t' + 2 alpha v_t = 0 */
@@ -393,14 +403,14 @@ static int update_set(int nc, const double *gap, double gap_tol, const double *m
     return changed;
 }
 
-/* positions: penetrating contacts back onto gap = 0 by the smallest step in the mass metric, dq = M^-1 Wn' m,
+/* Positions: penetrating contacts back onto gap = 0 by the smallest step in the mass metric, dq = M^-1 Wn' m,
  * m >= 0 (the displacement an impulse would cause: light parts move, the heavy body hardly; a step that is
  * smallest in plain coordinates tilts the body and lifts the other wheels off, and they fall back and hop),
  * with every touching contact the step would push into the ground held at gap = 0 too (simultaneously: fixing
  * one wheel must not sink its neighbour); a wheel just above the ground may be lifting off and is left alone
  * unless the step would push it in. Returns 1 if q changed, 0 if not, -1 on a singular system. */
-static int project_positions(int nq, int nc, double *q, const double *M, const double *W, const double *gap,
-                             const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
+int rigid_project(int nq, int nc, double *q, const double *M, const double *W, const double *gap,
+                  const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
     const int ldw = 3 * nc;
     double *Mlu = work, *Y = Mlu + (size_t)nq * nq, *A = Y + (size_t)nq * nc, *rhs = A + (size_t)nc * nc,
            *step = rhs + nc, *pred = step + nq;
@@ -410,11 +420,7 @@ static int project_positions(int nq, int nc, double *q, const double *M, const d
     for (int k = 0; k < nc; k++)
         if (gap[k] < -1e-13) act[na++] = k, member[k] = 1;
     if (na == 0) return 0;
-    memcpy(Mlu, M, sizeof(double) * (size_t)nq * nq);
-    if (linalg_lu_factor(nq, Mlu, piv)) {
-        snprintf(msg, msg_len, "rigid contact: the mass matrix is singular");
-        return -1;
-    }
+    if (factor_mass(nq, M, Mlu, piv, msg, msg_len)) return -1;
     for (int round = 0; na > 0; round++) {
         for (int a = 0; a < na; a++) {
             double *col = Y + (size_t)a * nq;
@@ -443,11 +449,6 @@ static int project_positions(int nq, int nc, double *q, const double *M, const d
     return 0;
 }
 
-int rigid_project(int nq, int nc, double *q, const double *M, const double *W, const double *gap,
-                  const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
-    return project_positions(nq, nc, q, M, W, gap, p, work, iwork, msg, msg_len);
-}
-
 int rigid_impact(int nq, int nc, double *u, const double *M, const double *W, const double *vc, const double *gap,
                  const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
     /* velocities: an inelastic impact with Coulomb friction when a touching wheel approaches the ground. The
@@ -463,11 +464,7 @@ int rigid_impact(int nq, int nc, double *u, const double *M, const double *W, co
     double *Mlu = work, *zero = Mlu + (size_t)nq * nq, *zero_target = zero + nq, *du = zero_target + 3 * nc,
            *L = du + nq, *y = L + 3 * nc, *dir = y + 3 * nc, *entry_dir = dir + 2 * nc, *scratch = entry_dir + 2 * nc;
     int *piv = iwork, *touching = piv + nq, *entry = touching + nc, *mode = entry + nc, *iscratch = mode + nc;
-    memcpy(Mlu, M, sizeof(double) * (size_t)nq * nq);
-    if (linalg_lu_factor(nq, Mlu, piv)) {
-        snprintf(msg, msg_len, "rigid contact: the mass matrix is singular");
-        return -1;
-    }
+    if (factor_mass(nq, M, Mlu, piv, msg, msg_len)) return -1;
     memset(zero, 0, sizeof(double) * nq);
     memset(zero_target, 0, sizeof(double) * 3 * (size_t)nc);
     contact_lcp s = {.nq = nq, .nc = nc, .Mlu = Mlu, .piv = piv, .x0 = zero, .W = W, .bias = vc,
