@@ -7,10 +7,13 @@
  *
  * Logging: messages with a status other than fmi2OK (warnings, discards, errors) are always sent to the logger;
  * logEvents messages (initialization, settle) only when debug logging is on for logEvents or logAll.
- * Errors caused by a bad argument or call order leave the instance as it was (the call has no effect).
+ * Errors caused by a bad argument or call order leave the instance as it was (the call has no effect): a call
+ * checks everything it was given before it writes anything. fmi2DoStep returns fmi2OK only after it integrated the
+ * whole communication step, and its cost is bounded by solver.max_steps and solver.max_wall_time.
  */
 #include <math.h>
 #include <stdarg.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -27,6 +30,7 @@
 #define DIM(n) ((n) > 0 ? (n) : 1)
 #define STATE_MAGIC 0xCED2A0F2u
 #define MSG_LEN 512
+#define MAX_START_TIME 1e9          /* s, see fmi2SetupExperiment */
 
 enum phase {
     PH_INSTANTIATED = 1 << 0,
@@ -60,8 +64,10 @@ typedef struct {
     double q_start[NQ];
     double u_start[NQ];
     int settle;
+    int tol_explicit;               /* solver.tol was set by the user: the importer's tolerance does not replace it */
     solver_settings solver;
     solver_stats stats;
+    uint64_t checksum;              /* of a serialized state: FNV-1a over its bytes with this field zero */
 } cedra_state;
 
 typedef struct {
@@ -122,6 +128,28 @@ static int allowed(instance *c, const char *fn, int mask) {
 
 /* -------------------------------------------------------------------------------------------- state setup */
 
+/* the solver settings by the variable table's index (variables.py: 0 method, 1 tol, 2 h_max, 3 max_steps,
+ * 4 max_wall_time) */
+static double solver_value(const solver_settings *s, int index) {
+    switch (index) {
+        case 0: return (double)s->method;
+        case 1: return s->tol;
+        case 2: return s->h_max;
+        case 3: return (double)s->max_steps;
+        default: return s->max_wall;
+    }
+}
+
+static void solver_store(solver_settings *s, int index, double d) {
+    switch (index) {
+        case 0: s->method = (int)d; break;
+        case 1: s->tol = d; break;
+        case 2: s->h_max = d; break;
+        case 3: s->max_steps = (long)d; break;
+        default: s->max_wall = d; break;
+    }
+}
+
 static void set_defaults(instance *c, double start_time) {
     cedra_state *s = &c->s;
     memset(s, 0, sizeof *s);
@@ -137,21 +165,19 @@ static void set_defaults(instance *c, double start_time) {
         const cedra_var *v = &CEDRA_VARS[i];
         if (v->kind == CEDRA_K_U_START) s->u_start[v->index] = v->start;
         if (v->kind == CEDRA_K_SETTLE) s->settle = v->start != 0.0;
+        if (v->kind == CEDRA_K_SOLVER) solver_store(&s->solver, v->index, v->start);
     }
-    s->solver.method = CEDRA_SOLVER_METHOD;
-    s->solver.tol = CEDRA_SOLVER_TOL;
-    s->solver.h_max = CEDRA_SOLVER_H_MAX;
 }
 
-/* x from the start values (settled if start.settle) and the outputs there; 0 or 1 (logged) */
+/* x from the start values (settled if start.settle) and the outputs there; 0 or 1 (logged, the state unchanged) */
 static int initial_state(instance *c, const char *fn) {
     cedra_state *s = &c->s;
-    double *q = s->x, *u = s->x + NQ;
+    double x[NX], *q = x, *u = x + NQ;
     if (s->outputs_valid) return 0;
     model_bind(c->ws, s->inp, s->par);
     memcpy(q, s->q_start, sizeof(double) * NQ);
     memcpy(u, s->u_start, sizeof(double) * NQ);
-    for (int i = 0; i < NZ; i++) s->x[2 * NQ + i] = 0.0;
+    for (int i = 0; i < NZ; i++) x[2 * NQ + i] = 0.0;
     if (s->settle) {
         if (model_settle(c->ws, q)) {
             log_msg(c, fmi2Error, CAT_ERROR, "%s: static equilibrium at the start failed: %s", fn,
@@ -164,10 +190,11 @@ static int initial_state(instance *c, const char *fn) {
         log_msg(c, fmi2Error, CAT_ERROR, "%s: the start state cannot be evaluated: %s", fn, model_message(c->ws));
         return 1;
     }
-    if (model_outputs(c->ws, s->x, c->y_tmp)) {
+    if (model_outputs(c->ws, x, c->y_tmp)) {
         log_msg(c, fmi2Error, CAT_ERROR, "%s: outputs at the start: %s", fn, model_message(c->ws));
         return 1;
     }
+    memcpy(s->x, x, sizeof x);
     memcpy(s->y, c->y_tmp, sizeof(double) * CEDRA_NY);
     s->outputs_valid = 1;
     return 0;
@@ -330,11 +357,24 @@ fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined,
     if (!c) return fmi2Error;
     if (!allowed(c, "fmi2SetupExperiment", PH_INSTANTIATED)) return fmi2Error;
     if (!isfinite(startTime)) return FAIL(c, "fmi2SetupExperiment: startTime = %g is not finite", startTime);
+    /* the solvers resolve time to 1e-12 |t| (solver_time_resolution): beyond 1e9 s not even a 1 ms step could be
+     * resolved, and at 1e300 a step would not advance time at all */
+    if (fabs(startTime) > MAX_START_TIME)
+        return FAIL(c, "fmi2SetupExperiment: startTime = %g is beyond +-%g s, where the embedded solvers cannot "
+                    "resolve time steps below %g s", startTime, MAX_START_TIME, solver_time_resolution(MAX_START_TIME));
     if (stopTimeDefined && !(stopTime >= startTime))
         return FAIL(c, "fmi2SetupExperiment: stopTime = %g is before startTime = %g", stopTime, startTime);
-    if (toleranceDefined)
-        log_msg(c, fmi2OK, CAT_EVENTS, "fmi2SetupExperiment: tolerance %g ignored (the parameter solver.tol sets "
-                "the embedded solver's tolerance)", tolerance);
+    if (toleranceDefined && !(tolerance > 0 && isfinite(tolerance)))
+        return FAIL(c, "fmi2SetupExperiment: tolerance = %g must be > 0 and finite", tolerance);
+    if (toleranceDefined && c->s.tol_explicit) {
+        log_msg(c, fmi2OK, CAT_EVENTS, "fmi2SetupExperiment: tolerance %g not used: solver.tol = %g was set "
+                "explicitly", tolerance, c->s.solver.tol);
+    } else if (toleranceDefined) {
+        c->s.solver.tol = tolerance;
+        c->s.outputs_valid = 0;
+        log_msg(c, fmi2OK, CAT_EVENTS, "fmi2SetupExperiment: the embedded solver's tolerance solver.tol = %g (the "
+                "importer's tolerance)", tolerance);
+    }
     c->s.time = c->s.start_time = c->s.last_good_time = startTime;
     return fmi2OK;
 }
@@ -416,9 +456,7 @@ static int get_value(instance *c, const char *fn, const cedra_var *v, double *ou
         case CEDRA_K_Q_START: *out = s->q_start[v->index]; return 0;
         case CEDRA_K_U_START: *out = s->u_start[v->index]; return 0;
         case CEDRA_K_SETTLE: *out = s->settle; return 0;
-        case CEDRA_K_SOLVER:
-            *out = v->index == 0 ? (double)s->solver.method : v->index == 1 ? s->solver.tol : s->solver.h_max;
-            return 0;
+        case CEDRA_K_SOLVER: *out = solver_value(&s->solver, v->index); return 0;
         case CEDRA_K_STAT:
             *out = (double)(v->index == 0 ? s->stats.steps : v->index == 1 ? s->stats.rejected
                                                                           : s->stats.rhs_evals);
@@ -485,33 +523,46 @@ fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size
     return fmi2OK;
 }
 
-/* check and store one value; 0 or 1 (logged) */
-static int set_value(instance *c, const char *fn, const cedra_var *v, double d) {
-    cedra_state *s = &c->s;
+/* 0 if d is a valid value of v (finite, within min/max), else 1 with the reason ("= nan is not finite") in why */
+static int check_range(const cedra_var *v, double d, char *why, size_t len) {
+    if (!isfinite(d)) {
+        snprintf(why, len, "= %g is not finite", d);
+        return 1;
+    }
+    if (d < v->min || (v->min_exclusive && d == v->min)) {
+        snprintf(why, len, "= %.17g must be %s %.17g", d, v->min_exclusive ? ">" : ">=", v->min);
+        return 1;
+    }
+    if (d > v->max) {
+        snprintf(why, len, "= %.17g must be <= %.17g", d, v->max);
+        return 1;
+    }
+    return 0;
+}
+
+/* 0 if v may be set to d now, else 1 (logged); writes nothing */
+static int check_set(instance *c, const char *fn, const cedra_var *v, double d) {
+    char why[160];
     if (v->causality == CEDRA_OUTPUT) {
         log_msg(c, fmi2Error, CAT_ERROR, "%s: variable %s (vr %u) is an output (calculated), it cannot be set", fn,
                 v->name, v->vr);
         return 1;
     }
-    if (v->causality == CEDRA_PARAMETER && !(s->phase & (PH_INSTANTIATED | PH_INIT))) {
+    if (v->causality == CEDRA_PARAMETER && !(c->s.phase & (PH_INSTANTIATED | PH_INIT))) {
         log_msg(c, fmi2Error, CAT_ERROR, "%s: parameter %s (vr %u) is fixed: it can be set only before "
                 "fmi2ExitInitializationMode", fn, v->name, v->vr);
         return 1;
     }
-    if (!isfinite(d)) {
-        log_msg(c, fmi2Error, CAT_ERROR, "%s: variable %s (vr %u) = %g is not finite", fn, v->name, v->vr, d);
+    if (check_range(v, d, why, sizeof why)) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: variable %s (vr %u) %s", fn, v->name, v->vr, why);
         return 1;
     }
-    if (d < v->min || (v->min_exclusive && d == v->min)) {
-        log_msg(c, fmi2Error, CAT_ERROR, "%s: variable %s (vr %u) = %.17g must be %s %.17g", fn, v->name, v->vr,
-                d, v->min_exclusive ? ">" : ">=", v->min);
-        return 1;
-    }
-    if (d > v->max) {
-        log_msg(c, fmi2Error, CAT_ERROR, "%s: variable %s (vr %u) = %.17g must be <= %.17g", fn, v->name, v->vr, d,
-                v->max);
-        return 1;
-    }
+    return 0;
+}
+
+/* stores a value check_set accepted */
+static void store_value(instance *c, const cedra_var *v, double d) {
+    cedra_state *s = &c->s;
     switch (v->kind) {
         case CEDRA_K_PAR: s->par[v->index] = d; break;
         case CEDRA_K_INP: s->inp[v->index] = d; break;
@@ -519,25 +570,40 @@ static int set_value(instance *c, const char *fn, const cedra_var *v, double d) 
         case CEDRA_K_U_START: s->u_start[v->index] = d; break;
         case CEDRA_K_SETTLE: s->settle = d != 0.0; break;
         case CEDRA_K_SOLVER:
-            if (v->index == 0) s->solver.method = (int)d;
-            else if (v->index == 1) s->solver.tol = d;
-            else s->solver.h_max = d;
+            solver_store(&s->solver, v->index, d);
+            if (v->index == 1) s->tol_explicit = 1;
             break;
-        default: return 1;
+        default: break;
     }
     if (s->phase & (PH_INSTANTIATED | PH_INIT)) s->outputs_valid = 0;
-    return 0;
+}
+
+/* value k of an fmi2Set* array of the given type, as a double */
+static double value_as_double(const void *values, int type, size_t k) {
+    switch (type) {
+        case CEDRA_REAL: return ((const fmi2Real *)values)[k];
+        case CEDRA_INTEGER: return (double)((const fmi2Integer *)values)[k];
+        default: return ((const fmi2Boolean *)values)[k] ? 1.0 : 0.0;
+    }
+}
+
+/* All or nothing: every (vr, value) pair is checked before the first one is stored, so a refused call leaves
+ * the instance as it was. */
+static fmi2Status set_values(instance *c, const char *fn, const fmi2ValueReference vr[], size_t nvr,
+                             const void *values, int type) {
+    for (size_t k = 0; k < nvr; k++) {
+        const cedra_var *v = lookup(c, fn, vr[k], type);
+        if (!v || check_set(c, fn, v, value_as_double(values, type, k))) return fmi2Error;
+    }
+    for (size_t k = 0; k < nvr; k++) store_value(c, &CEDRA_VARS[vr[k]], value_as_double(values, type, k));
+    return fmi2OK;
 }
 
 fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
     instance *c = (instance *)comp;
     if (!c) return fmi2Error;
     if (!allowed(c, "fmi2SetReal", PH_SET) || !check_array_args(c, "fmi2SetReal", vr, nvr, value)) return fmi2Error;
-    for (size_t k = 0; k < nvr; k++) {
-        const cedra_var *v = lookup(c, "fmi2SetReal", vr[k], CEDRA_REAL);
-        if (!v || set_value(c, "fmi2SetReal", v, value[k])) return fmi2Error;
-    }
-    return fmi2OK;
+    return set_values(c, "fmi2SetReal", vr, nvr, value, CEDRA_REAL);
 }
 
 fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
@@ -546,11 +612,7 @@ fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], siz
     if (!c) return fmi2Error;
     if (!allowed(c, "fmi2SetInteger", PH_SET) || !check_array_args(c, "fmi2SetInteger", vr, nvr, value))
         return fmi2Error;
-    for (size_t k = 0; k < nvr; k++) {
-        const cedra_var *v = lookup(c, "fmi2SetInteger", vr[k], CEDRA_INTEGER);
-        if (!v || set_value(c, "fmi2SetInteger", v, (double)value[k])) return fmi2Error;
-    }
-    return fmi2OK;
+    return set_values(c, "fmi2SetInteger", vr, nvr, value, CEDRA_INTEGER);
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
@@ -559,11 +621,7 @@ fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], siz
     if (!c) return fmi2Error;
     if (!allowed(c, "fmi2SetBoolean", PH_SET) || !check_array_args(c, "fmi2SetBoolean", vr, nvr, value))
         return fmi2Error;
-    for (size_t k = 0; k < nvr; k++) {
-        const cedra_var *v = lookup(c, "fmi2SetBoolean", vr[k], CEDRA_BOOLEAN);
-        if (!v || set_value(c, "fmi2SetBoolean", v, value[k] ? 1.0 : 0.0)) return fmi2Error;
-    }
-    return fmi2OK;
+    return set_values(c, "fmi2SetBoolean", vr, nvr, value, CEDRA_BOOLEAN);
 }
 
 fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) {
@@ -582,13 +640,86 @@ fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size
 
 /* ----------------------------------------------------------------------------------------------- FMU state */
 
+/* 1 if st is a state of this FMU (magic, size, GUID), else 0 (logged) */
 static int state_ok(instance *c, const char *fn, const cedra_state *st) {
-    if (st->magic != STATE_MAGIC || st->size != sizeof(cedra_state) || strcmp(st->guid, CEDRA_GUID) != 0 ||
-        !(st->phase & PH_ANY)) {
+    if (st->magic != STATE_MAGIC || st->size != sizeof(cedra_state) || memchr(st->guid, '\0', sizeof st->guid) == NULL
+        || strcmp(st->guid, CEDRA_GUID) != 0) {
         log_msg(c, fmi2Error, CAT_ERROR, "%s: not a state of this FMU (%s)", fn, CEDRA_MODEL_IDENTIFIER);
         return 0;
     }
     return 1;
+}
+
+static int all_finite(const double *v, int n) {
+    for (int i = 0; i < n; i++)
+        if (!isfinite(v[i])) return 0;
+    return 1;
+}
+
+static int is_flag(int v) { return v == 0 || v == 1; }
+
+/* 1 if st is a state of this FMU whose every field is one the FMU could have made: a known phase, flags 0/1,
+ * finite times and states, every parameter, input and solver setting within its variable's range, counters >= 0,
+ * and a state x the model can evaluate; else 0 (logged with the first reason found) */
+static int state_valid(instance *c, const char *fn, const cedra_state *st) {
+    const char *why = NULL;
+    char buf[200];
+    if (!state_ok(c, fn, st)) return 0;
+    if (st->phase != PH_INSTANTIATED && st->phase != PH_INIT && st->phase != PH_STEP_COMPLETE &&
+        st->phase != PH_STEP_FAILED && st->phase != PH_TERMINATED)
+        why = "its phase is not one of this FMU's";
+    else if (!is_flag(st->terminated) || !is_flag(st->outputs_valid) || !is_flag(st->settle) ||
+             !is_flag(st->tol_explicit))
+        why = "a flag is neither 0 nor 1";
+    else if (!isfinite(st->time) || !isfinite(st->start_time) || !isfinite(st->last_good_time))
+        why = "a time is not finite";
+    else if (!all_finite(st->x, NX) || !all_finite(st->y, CEDRA_NY))
+        why = "the state x or the outputs are not finite";
+    else if (st->stats.steps < 0 || st->stats.rejected < 0 || st->stats.rhs_evals < 0 || st->stats.jac_evals < 0 ||
+             !(st->stats.h_next >= 0) || !isfinite(st->stats.h_next))
+        why = "a solver counter is negative or not finite";
+    for (int i = 0; !why && i < CEDRA_NVARS; i++) {
+        const cedra_var *v = &CEDRA_VARS[i];
+        double d;
+        char range[160];
+        switch (v->kind) {
+            case CEDRA_K_PAR: d = st->par[v->index]; break;
+            case CEDRA_K_INP: d = st->inp[v->index]; break;
+            case CEDRA_K_Q_START: d = st->q_start[v->index]; break;
+            case CEDRA_K_U_START: d = st->u_start[v->index]; break;
+            case CEDRA_K_SOLVER: d = solver_value(&st->solver, v->index); break;
+            default: continue;
+        }
+        if (check_range(v, d, range, sizeof range)) {
+            snprintf(buf, sizeof buf, "its %s %s", v->name, range);
+            why = buf;
+        }
+    }
+    if (!why && st->outputs_valid) {
+        /* the model must accept the state (the bound inputs and parameters are the candidate's, then ours again) */
+        model_bind(c->ws, st->inp, st->par);
+        if (!model_check(c->ws, st->x, st->x + NQ)) {
+            snprintf(buf, sizeof buf, "the model cannot evaluate its state: %s", model_message(c->ws));
+            why = buf;
+        }
+        model_bind(c->ws, c->s.inp, c->s.par);
+    }
+    if (why) {
+        log_msg(c, fmi2Error, CAT_ERROR, "%s: refused, %s", fn, why);
+        return 0;
+    }
+    return 1;
+}
+
+/* FNV-1a over a state's bytes, its checksum field counted as zero */
+static uint64_t state_checksum(const cedra_state *st) {
+    cedra_state tmp;
+    uint64_t h = 1469598103934665603ull;
+    memcpy(&tmp, st, sizeof tmp);
+    tmp.checksum = 0;
+    const unsigned char *b = (const unsigned char *)&tmp;
+    for (size_t i = 0; i < sizeof tmp; i++) h = (h ^ b[i]) * 1099511628211ull;
+    return h;
 }
 
 fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
@@ -614,7 +745,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate FMUstate) {
     instance *c = (instance *)comp;
     if (!c) return fmi2Error;
     if (!FMUstate) return FAIL(c, "fmi2SetFMUstate: FMUstate is NULL");
-    if (!state_ok(c, "fmi2SetFMUstate", (const cedra_state *)FMUstate)) return fmi2Error;
+    if (!state_valid(c, "fmi2SetFMUstate", (const cedra_state *)FMUstate)) return fmi2Error;
     memcpy(&c->s, FMUstate, sizeof c->s);
     return fmi2OK;
 }
@@ -645,7 +776,10 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate FMUstate, fmi2
         return FAIL(c, "fmi2SerializeFMUstate: size %zu, the serialized state has %zu bytes", size,
                     sizeof(cedra_state));
     if (!state_ok(c, "fmi2SerializeFMUstate", (const cedra_state *)FMUstate)) return fmi2Error;
-    memcpy(serializedState, FMUstate, size);
+    cedra_state out;
+    memcpy(&out, FMUstate, sizeof out);
+    out.checksum = state_checksum(&out);
+    memcpy(serializedState, &out, size);
     return fmi2OK;
 }
 
@@ -661,6 +795,10 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte serialized
                     CEDRA_MODEL_IDENTIFIER, sizeof(cedra_state));
     memcpy(&tmp, serializedState, sizeof tmp);
     if (!state_ok(c, "fmi2DeSerializeFMUstate", &tmp)) return fmi2Error;
+    if (tmp.checksum != state_checksum(&tmp))
+        return FAIL(c, "fmi2DeSerializeFMUstate: refused, the checksum does not match the bytes (a damaged or "
+                    "edited state)");
+    if (!state_valid(c, "fmi2DeSerializeFMUstate", &tmp)) return fmi2Error;
     if (!*FMUstate) {
         *FMUstate = c->alloc(1, sizeof(cedra_state));
         if (!*FMUstate) {
@@ -726,8 +864,12 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint, fm
     if (!isfinite(h) || h <= 0) return FAIL(c, "fmi2DoStep: communicationStepSize = %g must be > 0", h);
     if (!isfinite(t) || fabs(t - s->time) > 1e-9 * fmax(1.0, fabs(s->time)))
         return FAIL(c, "fmi2DoStep: currentCommunicationPoint = %.17g, but the FMU is at t=%.17g", t, s->time);
-    if (s->solver.method < 0 || s->solver.method >= SOLVER_N_METHODS)
-        return FAIL(c, "fmi2DoStep: solver.method = %d is not in 0..%d", s->solver.method, SOLVER_N_METHODS - 1);
+    /* a step the solvers cannot resolve would "succeed" having integrated nothing */
+    if (h < solver_time_resolution(t) || !(t + h > t))
+        return FAIL(c, "fmi2DoStep: communicationStepSize = %g is below the time resolution %g s at t=%.17g",
+                    h, solver_time_resolution(t), t);
+    /* settings or an interval that cannot be integrated within the call's budget: refused before any work */
+    if (solver_check(&s->solver, t, t + h, c->msg, sizeof c->msg)) return FAIL(c, "fmi2DoStep: refused: %s", c->msg);
     model_bind(c->ws, s->inp, s->par);
     memcpy(c->x_save, s->x, sizeof(double) * NX);
     c->msg[0] = '\0';

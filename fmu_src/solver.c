@@ -1,16 +1,17 @@
 /* Embedded ODE solvers (see solver.h): fixed-step RK4, adaptive Dormand-Prince 5(4), adaptive Rosenbrock RODAS4.
  * No allocation, no globals: every vector lives in the caller's `work`; the only stack array is the pivot
  * vector of the (small, n <= a few dozen) iteration matrix, because `work` holds doubles only. */
+#define _POSIX_C_SOURCE 200112L   /* clock_gettime: the wall-clock budget of a call */
 #include "solver.h"
 
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
+#include <time.h>
 
 #include "linalg.h"
 
-#define MAX_STEPS 500000L   /* attempted steps per call before "too many steps" */
 #define MAX_FAILS 15        /* consecutive failed evaluations (rhs/jac error, non-finite, singular W) per point */
 #define SAFETY 0.9
 #define FAC_SHRINK 0.2      /* smallest h_new/h after an error test */
@@ -37,6 +38,24 @@ static void put_msg(char *msg, size_t len, const char *fmt, ...) {
     va_start(ap, fmt);
     vsnprintf(msg, len, fmt, ap);
     va_end(ap);
+}
+
+/* seconds on a monotonic clock (the budget of one call; never part of a result) */
+static double wall_now(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* 1 (message written) if the call has spent its wall-clock budget since `start` */
+static int over_wall_budget(const solver_settings *s, double start, const char *name, long steps, double t,
+                            double t1, char *msg, size_t msg_len) {
+    double spent = wall_now() - start;
+    if (spent <= s->max_wall) return 0;
+    put_msg(msg, msg_len, "%s: the call's wall-clock budget of %g s is spent (%.3g s, %ld steps, reached t = %.15g "
+            "of %.15g); raise solver.max_wall_time or shorten the communication step", name, s->max_wall, spent,
+            steps, t, t1);
+    return 1;
 }
 
 static int all_finite(int n, const double *v) {
@@ -88,12 +107,14 @@ size_t solver_workspace_size(int method, int n) {
 static int rk4(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
                solver_post_fn post, void *ctx, double *work, solver_stats *st, char *msg, size_t msg_len) {
     double *k1 = work, *k2 = k1 + n, *k3 = k2 + n, *k4 = k3 + n, *y = k4 + n;
-    const double h = s->h_max;
+    const double h = s->h_max, start = wall_now();
     /* The 1e-12 keeps an interval that is a multiple of h up to rounding (0.010000000000000009 / 0.001)
-     * from getting a sliver step; a genuine remainder is never dropped, it becomes a shortened last step. */
+     * from getting a sliver step; a genuine remainder is never dropped, it becomes a shortened last step.
+     * solver_check has bounded the count by max_steps, so the conversion is exact. */
     double ns = ceil((t1 - t0) / h - 1e-12);
     long nsteps = ns < 1 ? 1 : (long)ns;
     for (long k = 0; k < nsteps; k++) {
+        if (k > 0 && over_wall_budget(s, start, "rk4", k, t0 + (double)k * h, t1, msg, msg_len)) return 1;
         /* t from t0 + k*h rather than accumulated sums, and the last step ends on t1 itself */
         double ta = t0 + (double)k * h, tb = (k == nsteps - 1) ? t1 : t0 + (double)(k + 1) * h, hs = tb - ta;
         int ev;
@@ -315,6 +336,7 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
     double *xnew = dopri ? DP_XNEW(w, n) : RO_XNEW(w, n), *errv = dopri ? DP_ERR(w, n) : RO_ERR(w, n);
 
     double t = t0, h, facold = 1e-4;
+    const double start = wall_now();
     int have_start = 0, fails = 0, rejected_last = 0, last_ev = -1;
     long attempts = 0;
 
@@ -330,7 +352,7 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
     }
 
     for (;;) {
-        const double rem = t1 - t, hprop = fmin(h, hmax), hmin = 1e-12 * fmax(1.0, fabs(t));
+        const double rem = t1 - t, hprop = fmin(h, hmax), hmin = solver_time_resolution(t);
         double hs;
         int last = 0, ev;
         /* Land on t1 exactly; the 1e-9 only absorbs rounding in t so that a multiple of h_max takes no
@@ -344,11 +366,12 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
             hs = hprop;
         }
         if (!last && hs < hmin) goto underflow;
-        if (++attempts > MAX_STEPS) {
-            put_msg(msg, msg_len, "%s: too many steps (more than %ld in one call) at t = %.15g (h = %.3g)", name,
-                    MAX_STEPS, t, hs);
+        if (++attempts > s->max_steps) {
+            put_msg(msg, msg_len, "%s: too many steps (more than solver.max_steps = %ld in one call) at t = %.15g "
+                    "(h = %.3g)", name, s->max_steps, t, hs);
             return 1;
         }
+        if (attempts > 1 && over_wall_budget(s, start, name, attempts - 1, t, t1, msg, msg_len)) return 1;
         const double tend = last ? t1 : t + hs;
 
         ev = EV_OK;
@@ -451,9 +474,9 @@ int solver_integrate(const solver_settings *s, int n, double *x, double t0, doub
     return solver_integrate_post(s, n, x, t0, t1, rhs, jac, NULL, NULL, ctx, work, stats, msg, msg_len);
 }
 
-int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
-                          solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx,
-                          double *work, solver_stats *stats, char *msg, size_t msg_len) {
+double solver_time_resolution(double t) { return 1e-12 * fmax(1.0, fabs(t)); }
+
+int solver_check(const solver_settings *s, double t0, double t1, char *msg, size_t msg_len) {
     static const char *const names[SOLVER_N_METHODS] = {"rk4", "dopri5", "rodas4"};
     if (msg && msg_len) msg[0] = '\0';
     if (s->method < 0 || s->method >= SOLVER_N_METHODS) {
@@ -473,6 +496,28 @@ int solver_integrate_post(const solver_settings *s, int n, double *x, double t0,
         put_msg(msg, msg_len, "%s: tol must be positive (tol = %g)", name, s->tol);
         return 1;
     }
+    if (!(s->max_steps >= 1)) {
+        put_msg(msg, msg_len, "%s: max_steps must be >= 1 (max_steps = %ld)", name, s->max_steps);
+        return 1;
+    }
+    if (!(s->max_wall > 0) || !isfinite(s->max_wall)) {
+        put_msg(msg, msg_len, "%s: max_wall must be positive and finite (max_wall = %g)", name, s->max_wall);
+        return 1;
+    }
+    /* every method takes at least (t1 - t0) / h_max steps: refuse what cannot fit the budget before any work */
+    double least = ceil((t1 - t0) / s->h_max - 1e-12);
+    if (least > (double)s->max_steps) {
+        put_msg(msg, msg_len, "%s: the interval of %.15g s needs at least %.3g steps of solver.h_max = %g s, more "
+                "than solver.max_steps = %ld", name, t1 - t0, least, s->h_max, s->max_steps);
+        return 1;
+    }
+    return 0;
+}
+
+int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
+                          solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx,
+                          double *work, solver_stats *stats, char *msg, size_t msg_len) {
+    if (solver_check(s, t0, t1, msg, msg_len)) return 1;
     if (s->method == SOLVER_RODAS4 && !jac) {
         put_msg(msg, msg_len, "rodas4: no Jacobian function");
         return 1;

@@ -29,6 +29,8 @@ typedef struct {
     int method;        /* enum solver_method */
     double tol;        /* relative and absolute tolerance of the adaptive methods */
     double h_max;      /* largest step; RK4's fixed step */
+    long max_steps;    /* budget of one call: attempted steps (accepted and rejected), >= 1 */
+    double max_wall;   /* budget of one call: wall-clock seconds, > 0 and finite */
 } solver_settings;
 
 typedef struct {       /* counts since the start of the simulation (part of the FMU state) */
@@ -36,12 +38,23 @@ typedef struct {       /* counts since the start of the simulation (part of the 
     double h_next;     /* step size proposal carried between calls (adaptive methods) */
 } solver_stats;
 
+/* The smallest step the solvers take at time t (1e-12 max(1, |t|)): below it time cannot be resolved, so an
+ * interval shorter than that cannot be integrated, and an adaptive step that would have to be shorter fails
+ * with "step size underflow". */
+double solver_time_resolution(double t);
+
+/* 0 if the settings can integrate [t0, t1] (t1 >= t0) within the call's budget, else 1 with the reason in msg:
+ * invalid settings or interval, or an interval that needs more than max_steps steps of h_max. Nothing is
+ * evaluated, so a caller can refuse a call before it changes anything. solver_integrate checks the same. */
+int solver_check(const solver_settings *s, double t0, double t1, char *msg, size_t msg_len);
+
 /* doubles of workspace the method needs for a system of size n */
 size_t solver_workspace_size(int method, int n);
 
 /* Integrate from t0 to t1 (t1 > t0) in place on x. The last step is shortened to land exactly on t1.
- * Returns 0 on success; on failure returns nonzero, leaves x at the last accepted state, and writes the reason
- * (e.g. "step size underflow h=1e-14 at t=0.53", "NaN in the derivative at t=...") into msg. */
+ * Returns 0 on success (x is the state at t1); on failure returns nonzero, leaves x at the last accepted state,
+ * and writes the reason (e.g. "step size underflow h=1e-14 at t=0.53", "NaN in the derivative at t=...", a spent
+ * budget: more than max_steps attempted steps or more than max_wall seconds) into msg. */
 int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1,
                      solver_rhs_fn rhs, solver_jac_fn jac, void *ctx,
                      double *work, solver_stats *stats, char *msg, size_t msg_len);

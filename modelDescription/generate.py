@@ -180,7 +180,6 @@ def vars_header(spec: ModelSpec, guid: str) -> str:
     table = variables(spec)
     nq, nz, ni, npar, ny, ns = (spec.nq, len(spec.z_names), len(spec.inputs), len(spec.params),
                                 len(spec.outputs), len(spec.settle_idx))
-    sd = solver_defaults(spec)
 
     def arr(name, ctype, values, fmt):
         vals = list(values) or [0]          # C99: no empty arrays (sizes say how many are used)
@@ -194,9 +193,7 @@ def vars_header(spec: ModelSpec, guid: str) -> str:
         f"#define CEDRA_NY {ny}", f"#define CEDRA_NS {ns}", "#define CEDRA_NX (2 * CEDRA_NQ + CEDRA_NZ)",
         f"#define CEDRA_RIGID {1 if spec.contact == 'rigid' else 0}", f"#define CEDRA_NC {spec.n_contacts}",
         f"#define CEDRA_HEIGHTMAP {1 if spec.heightmap_file else 0}",
-        f"#define CEDRA_NVARS {len(table)}",
-        f"#define CEDRA_SOLVER_METHOD {sd['method']}", f"#define CEDRA_SOLVER_TOL {_c_real(sd['tol'])}",
-        f"#define CEDRA_SOLVER_H_MAX {_c_real(sd['h_max'])}", "",
+        f"#define CEDRA_NVARS {len(table)}", "",
         arr("CEDRA_SETTLE_IDX", "int", spec.settle_idx, str),
         arr("CEDRA_Q_START", "double", spec.q_start, _c_real),
         arr("CEDRA_PAR_START", "double", [p.start for p in spec.params], _c_real),

@@ -39,8 +39,9 @@ def lib(tmp_path_factory):
     so.harness_workspace.restype = ctypes.c_size_t
     so.harness_workspace.argtypes = [ctypes.c_int, ctypes.c_int]
     so.harness_run.restype = ctypes.c_int
-    so.harness_run.argtypes = [ctypes.c_int, _D, ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_int, _D,
-                               ctypes.c_double, ctypes.c_double, _D, _D, _D, ctypes.c_char_p, ctypes.c_int]
+    so.harness_run.argtypes = [ctypes.c_int, _D, ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_long,
+                               ctypes.c_double, ctypes.c_int, _D, ctypes.c_double, ctypes.c_double, _D, _D, _D,
+                               ctypes.c_char_p, ctypes.c_int]
     so.harness_lu_solve.restype = ctypes.c_int
     so.harness_lu_solve.argtypes = [ctypes.c_int, _D, _D]
     return so
@@ -58,8 +59,10 @@ class Run:
         self.stats = stats
 
 
-def run(lib, problem, method, x0, t0, t1, tol=1e-6, h_max=1.0, par=0.0, stats=None):
+def run(lib, problem, method, x0, t0, t1, tol=1e-6, h_max=1.0, par=0.0, stats=None, max_steps=500000,
+        max_wall=1e9):
     """Integrate; `stats` (steps, rejected, rhs_evals, jac_evals, h_next) is updated in place if given.
+    max_steps and max_wall are the call's budget (attempted steps, wall-clock seconds).
     The workspace is exactly solver_workspace_size() long plus a guard that must stay untouched."""
     x = np.array(x0, dtype=float)
     n = x.size
@@ -69,8 +72,8 @@ def run(lib, problem, method, x0, t0, t1, tol=1e-6, h_max=1.0, par=0.0, stats=No
     info = np.zeros(2)
     msg = ctypes.create_string_buffer(256)
     parr = np.atleast_1d(np.array(par, dtype=float))
-    rc = lib.harness_run(problem, _p(parr), method, tol, h_max, n, _p(x), t0, t1, _p(work), _p(st), _p(info), msg,
-                         256)
+    rc = lib.harness_run(problem, _p(parr), method, tol, h_max, max_steps, max_wall, n, _p(x), t0, t1, _p(work),
+                         _p(st), _p(info), msg, 256)
     assert np.all(work[size:] == SENTINEL), "solver wrote past its workspace"
     return Run(rc, x, st.copy(), info[0], msg.value.decode())
 
@@ -254,6 +257,50 @@ def test_too_many_steps(lib):
     assert r.steps + r.rejected == 500000
     assert np.all(np.isfinite(r.x))
     assert 0 < r.x[0] < 1
+
+
+@pytest.mark.parametrize("method", [RK4, DOPRI5, RODAS4])
+@pytest.mark.parametrize("h_max,t1", [(1e-300, 0.5), (0.01, 1e300), (1e-3, 101.0)])
+def test_an_interval_beyond_the_step_budget_is_refused_before_any_work(lib, method, h_max, t1):
+    """Every method needs at least (t1 - t0) / h_max steps; past max_steps the call fails at once, x untouched
+    (RK4 used to convert the step count to a long out of range and return success having done nothing)."""
+    r = run(lib, DECAY, method, [1.0], 0, t1, h_max=h_max, max_steps=100000)
+    assert r.rc != 0
+    assert "needs at least" in r.msg and "more than solver.max_steps = 100000" in r.msg, r.msg
+    assert r.steps == r.rejected == r.rhs_evals == 0
+    assert r.x[0] == 1.0
+
+
+@pytest.mark.parametrize("method", [RK4, DOPRI5, RODAS4])
+def test_exactly_the_step_budget_is_enough(lib, method):
+    r = run(lib, DECAY, method, [1.0], 0, 1.0, h_max=0.01, par=1.0, max_steps=100)
+    assert r.rc == 0, r.msg
+    assert r.x[0] == pytest.approx(math.exp(-1), rel=1e-6)
+
+
+def test_the_attempted_step_budget_stops_the_call(lib):
+    r = run(lib, STIFF, DOPRI5, [1, 2], 0, 10.0, tol=1e-6, h_max=10, par=1e6, max_steps=250)
+    assert r.rc != 0
+    assert r.msg.startswith("dopri5: too many steps (more than solver.max_steps = 250 in one call)"), r.msg
+    assert r.steps + r.rejected == 250
+
+
+@pytest.mark.parametrize("method", [RK4, DOPRI5, RODAS4])
+def test_the_wall_clock_budget_stops_the_call(lib, method):
+    """A budget far below the work the call needs: the call fails with the budget named, having taken steps,
+    and x is the last accepted state (finite). No time is asserted: the reason is."""
+    r = run(lib, VDP, method, [2.0, 0.0], 0, 3000.0, tol=1e-10, h_max=1e-4 if method == RK4 else 1.0, par=1000.0,
+            max_steps=10**8, max_wall=1e-3)
+    assert r.rc != 0
+    assert "wall-clock budget of 0.001 s is spent" in r.msg, r.msg
+    assert r.steps > 0 and np.all(np.isfinite(r.x))
+
+
+def test_budget_settings_are_checked(lib):
+    r = run(lib, DECAY, DOPRI5, [1.0], 0, 1, max_steps=0)
+    assert r.rc != 0 and "max_steps must be >= 1" in r.msg
+    r = run(lib, DECAY, DOPRI5, [1.0], 0, 1, max_wall=float("nan"))
+    assert r.rc != 0 and "max_wall must be positive and finite" in r.msg
 
 
 def test_invalid_settings(lib):

@@ -16,6 +16,8 @@ before any code is generated.
     method = "rodas4"               # rk4 | dopri5 | rodas4
     tol = 1e-6
     h_max = 0.01
+    max_steps = 100000              # budget of one fmi2DoStep: attempted steps
+    max_wall_time = 1.0             # budget of one fmi2DoStep: wall-clock seconds
     [parameters]                    # start values of model parameters (spec section 4 names, ground_k, ...)
     [inputs]                        # start values of inputs (tau[1], mu, terrain_h, ...)
     [start]                         # initial coordinates, e.g. x = 0.0 (the rest is settled by the FMU)
@@ -32,6 +34,7 @@ from pathlib import Path
 from . import heightmap
 from .model import CedraModel, ModelOptions, input_table, param_table, projection
 from .spec import ModelSpec
+from .variables import MAX_STEPS_LIMIT, MAX_WALL_LIMIT
 from .terrain import KINDS
 
 SOLVERS = {"rk4": 0, "dopri5": 1, "rodas4": 2}
@@ -164,8 +167,16 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
             solver["method"] = _choice(path, k, value, set(SOLVERS))
         elif key in ("tol", "h_max"):
             solver[key] = _number(path, k, value, positive=True)
+        elif key == "max_wall_time":
+            solver[key] = _number(path, k, value, positive=True)
+            if solver[key] > MAX_WALL_LIMIT:
+                _fail(path, k, f"must be <= {MAX_WALL_LIMIT:g} s (a call always has a bound), got {solver[key]}")
+        elif key == "max_steps":
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_STEPS_LIMIT:
+                _fail(path, k, f"expected an integer in 1..{MAX_STEPS_LIMIT}, got {value!r}")
+            solver[key] = value
         else:
-            _fail(path, k, "unknown key (known: method, tol, h_max)")
+            _fail(path, k, "unknown key (known: method, tol, h_max, max_steps, max_wall_time)")
 
     opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked,
                        heightmap=heightmap_file)

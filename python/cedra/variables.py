@@ -11,7 +11,7 @@ start, unit, min/max, type) and where the C glue finds it (`kind`, `index`):
     "q_start"   i                   start value of q[i]              (parameter start.<q name> or a start_params name)
     "u_start"   i                   start value of u[i]              (parameter start.speed.<q name>)
     "settle"    0                   Boolean start.settle
-    "solver"    0 method, 1 tol, 2 h_max                             (parameters solver.*)
+    "solver"    0 method, 1 tol, 2 h_max, 3 max_steps, 4 max_wall_time   (parameters solver.*)
     "stat"      0 steps, 1 rejected, 2 rhs_evals                     (Integer outputs solver.*)
 
 Value references are the row numbers (0, 1, 2, ...), unique across types, so the C glue indexes its table
@@ -26,7 +26,12 @@ from .spec import ModelSpec
 
 SOLVER_METHODS = ("rk4", "dopri5", "rodas4")          # solver.method = index (enum solver_method in solver.h)
 KINDS = ("par", "inp", "out", "q_start", "u_start", "settle", "solver", "stat")
-SOLVER_DEFAULTS = dict(method="dopri5", tol=1e-6, h_max=0.01)
+# max_steps and max_wall_time bound the cost of one fmi2DoStep (no call runs without a bound): 1 s of wall time
+# answers about as fast as a user waits for one call; 100000 attempted steps is ~1-4 s of the 2D/3D models on
+# this machine and makes the bound reproducible when the clock would not be (a loaded machine)
+SOLVER_DEFAULTS = dict(method="dopri5", tol=1e-6, h_max=0.01, max_steps=100000, max_wall_time=1.0)
+MAX_STEPS_LIMIT = 2**31 - 1       # an fmi2Integer
+MAX_WALL_LIMIT = 1e6              # s: finite, so a call always has a bound
 
 
 @dataclass(frozen=True)
@@ -64,7 +69,8 @@ def solver_defaults(spec: ModelSpec) -> dict:
     unknown = set(s) - set(SOLVER_DEFAULTS)
     if unknown:
         raise ValueError(f"model {spec.name}: unknown solver settings {sorted(unknown)}")
-    return dict(method=solver_method_index(s["method"]), tol=float(s["tol"]), h_max=float(s["h_max"]))
+    return dict(method=solver_method_index(s["method"]), tol=float(s["tol"]), h_max=float(s["h_max"]),
+                max_steps=int(s["max_steps"]), max_wall_time=float(s["max_wall_time"]))
 
 
 def _finite(x, what):
@@ -121,11 +127,20 @@ def variables(spec: ModelSpec) -> list[Var]:
         unit=None, description="embedded solver: 0 RK4 (fixed step h_max), 1 DOPRI5, 2 RODAS4", type="Integer",
         kind="solver", index=0, min=0, max=len(SOLVER_METHODS) - 1)
     add(name="solver.tol", causality="parameter", variability="fixed", initial="exact", start=sd["tol"],
-        unit="1", description="relative and absolute tolerance of the adaptive solvers (> 0)", type="Real",
+        unit="1", description="relative and absolute tolerance of the adaptive solvers (> 0); the importer's "
+        "fmi2SetupExperiment tolerance replaces the default unless this parameter is set", type="Real",
         kind="solver", index=1, min=0.0, min_exclusive=True)
     add(name="solver.h_max", causality="parameter", variability="fixed", initial="exact", start=sd["h_max"],
         unit="s", description="largest step of the solvers, RK4's fixed step (> 0)", type="Real",
         kind="solver", index=2, min=0.0, min_exclusive=True)
+    add(name="solver.max_steps", causality="parameter", variability="fixed", initial="exact",
+        start=sd["max_steps"], unit=None, description="budget of one fmi2DoStep: attempted steps (accepted and "
+        "rejected); a communication step that needs more than max_steps steps of h_max is refused, one that "
+        "uses them up is discarded", type="Integer", kind="solver", index=3, min=1, max=MAX_STEPS_LIMIT)
+    add(name="solver.max_wall_time", causality="parameter", variability="fixed", initial="exact",
+        start=sd["max_wall_time"], unit="s", description="budget of one fmi2DoStep: wall-clock seconds; a step "
+        "that spends them is discarded", type="Real", kind="solver", index=4, min=0.0, min_exclusive=True,
+        max=MAX_WALL_LIMIT)
     for j, (n, d) in enumerate((("steps", "accepted steps since the start"),
                                 ("rejected", "rejected steps since the start"),
                                 ("rhs_evals", "right-hand side evaluations since the start"))):

@@ -74,10 +74,11 @@ static int jac(void *vctx, double t, const double *x, const double *xdot, double
 size_t harness_workspace(int method, int n) { return solver_workspace_size(method, n); }
 
 /* stats_io: steps, rejected, rhs_evals, jac_evals, h_next (in and out); info_out: t_max_seen, rhs calls */
-int harness_run(int problem, const double *par, int method, double tol, double h_max, int n, double *x, double t0,
-                double t1, double *work, double *stats_io, double *info_out, char *msg, int msg_len) {
+int harness_run(int problem, const double *par, int method, double tol, double h_max, long max_steps, double max_wall,
+                int n, double *x, double t0, double t1, double *work, double *stats_io, double *info_out, char *msg,
+                int msg_len) {
     harness_ctx c = {problem, par, -INFINITY, 0};
-    solver_settings s = {method, tol, h_max};
+    solver_settings s = {method, tol, h_max, max_steps, max_wall};
     solver_stats st = {(long)stats_io[0], (long)stats_io[1], (long)stats_io[2], (long)stats_io[3], stats_io[4]};
     int rc = solver_integrate(&s, n, x, t0, t1, rhs, jac, &c, work, &st, msg, (size_t)msg_len);
     stats_io[0] = (double)st.steps;

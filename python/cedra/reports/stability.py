@@ -251,8 +251,9 @@ def write(results, out_dir: Path, command, wall_total):
           "left the model's domain (the rover tipped over beyond 80 deg, or the fork passed its four-bar toggle: "
           "the model has no body-ground contact, so nothing after that point is physical). A run still going "
           f"after {WALL_BUDGET:g} s of wall time is stopped by the report (said in the reason column; verdict "
-          "**slow**: an explicit solver on a stiff case that neither finishes nor stops: the FMU's step limit is "
-          "per communication step (500000), which a 0.01 s communication step never reaches).", "",
+          "**slow**: an explicit solver on a stiff case that neither finishes nor stops. Every fmi2DoStep has its "
+          "own budget, `solver.max_steps` attempted steps and `solver.max_wall_time` seconds, so such a run "
+          "normally stops itself with a discard naming the spent budget before the report's limit).", "",
           md_table(HEADER, rows), "",
           "## Summary", "",
           f"- {len(results)} runs, {sum(r.finished for r in results)} finished, {len(bad)} failed the rule "
