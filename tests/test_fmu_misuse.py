@@ -1,0 +1,45 @@
+"""The misuse matrix (tests/misuse_matrix.py) on every shipped FMU, one test per FMU and class of misuse: each
+case's status, its logged message, and an instance that is unchanged (refused calls) or terminated (discarded
+steps) as the FMI 2.0 standard says."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import misuse_matrix
+from cedra.fmu import build_fmu
+from cedra.scene import load_shipped, shipped
+
+REPO = Path(__file__).resolve().parents[1]
+_PATHS: dict[str, Path] = {}
+
+
+def fmu_path(scene, tmp_path_factory) -> Path:
+    if scene not in _PATHS:
+        built = REPO / "build" / f"{scene}.fmu"
+        _PATHS[scene] = built if built.exists() else build_fmu(load_shipped(scene).spec(),
+                                                               tmp_path_factory.mktemp(scene))
+    return _PATHS[scene]
+
+
+CLASSES = ["call order", "NULL arguments", "unknown references and wrong types",
+           "NaN, infinite and out-of-range values", "all-or-nothing setters", "step arguments and budgets",
+           "setup experiment", "FMU states", "unsupported functions and kinds", "instantiation"]
+
+
+def test_the_matrix_has_every_class_and_at_least_150_cases(tmp_path_factory):
+    for scene in shipped():
+        path = fmu_path(scene, tmp_path_factory)
+        assert misuse_matrix.classes(path) == CLASSES or set(misuse_matrix.classes(path)) == set(CLASSES)
+        md = misuse_matrix.read_model_description(str(path))
+        assert len(misuse_matrix.cases(md)) >= 150, scene
+
+
+@pytest.mark.parametrize("cls", CLASSES)
+@pytest.mark.parametrize("scene", shipped())
+def test_misuse_is_answered_as_the_standard_says(scene, cls, tmp_path_factory):
+    results = misuse_matrix.run_all(fmu_path(scene, tmp_path_factory), only_cls=cls)
+    assert results, f"no cases in class {cls}"
+    problems = [f"{case.name}: {why}" for case, why in results if why]
+    assert not problems, f"{scene}, {cls}: {len(problems)} of {len(results)} cases wrong:\n" + "\n".join(problems)
