@@ -152,43 +152,136 @@ def wheel_rates_numeric(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, xi, st
     return out
 
 
+# ---------------------------------------------------------------- closed forms, symbolic (one copy)
+# The closed forms below are CasADi expressions: the same graph gives the numpy wrappers further down (tests,
+# scenario scripts) and the controller FMU's generated C (drive_functions). Parameters are symbols too, so a
+# controller FMU takes the rover's geometry as parameters like the plant does.
+
+KIN_PARAMS = ("R_w", "bogie_x", "bogie_y", "bogie_z", "bogie_half", "rear_x", "rear_z", "fork_ax", "fork_az",
+              "fork_bx", "fork_bz", "fork_a", "fork_b", "fork_c", "fork_wheel")
+
+
 def _e(a):
-    return np.array([np.cos(a), 0.0, np.sin(a)])
+    return ca.vertcat(ca.cos(a), 0, ca.sin(a))
 
 
-def _de(a):
-    return np.array([-np.sin(a), 0.0, np.cos(a)])
-
-
-def fork(theta4, p=None):
-    """Four-bar in numpy (spec section 2): theta5 and dtheta5/dtheta4 (implicit differentiation of |D - B| = b)."""
-    p = params(p)
-    a_pt, b_pt = np.array([p["fork_ax"], 0, p["fork_az"]]), np.array([p["fork_bx"], 0, p["fork_bz"]])
-    c_pt = a_pt + p["fork_a"] * _e(theta4)
-    d = c_pt - b_pt
-    k = (p["fork_b"] ** 2 - d @ d - p["fork_c"] ** 2) / (2 * p["fork_c"])
-    th5 = np.arctan2(d[2], d[0]) + np.arccos(k / np.linalg.norm(d))
-    db = c_pt + p["fork_c"] * _e(th5) - b_pt
-    dth5 = -(db @ (p["fork_a"] * _de(theta4))) / (p["fork_c"] * (db @ _de(th5)))
-    return th5, dth5, c_pt
+def _fork(theta4, p):
+    """Four-bar: theta5, dtheta5/dtheta4 (exact derivative of the closure) and the joint C, for a symbol theta4."""
+    c_pt, th5, _ = four_bar(theta4, p)
+    return th5, ca.jacobian(th5, theta4), c_pt
 
 
 def _wheel6(theta4, theta6, psi6, xi6, p):
     """Wheel 6 geometry in R: center, d(center)/dtheta4, contact-frame angular velocity per thetadot4, axle,
     contact normal z_C and rolling direction x_M."""
-    th5, dth5, c_pt = fork(theta4, p)
+    th5, dth5, c_pt = _fork(theta4, p)
     center = c_pt - p["fork_wheel"] * _e(th5)
-    dcenter = p["fork_a"] * _de(theta4) - p["fork_wheel"] * _de(th5) * dth5
-    s = _e(th5)
-    k = np.array([[0, -s[2], s[1]], [s[2], 0, -s[0]], [-s[1], s[0], 0]])
-    steer = np.eye(3) + np.sin(theta6) * k + (1 - np.cos(theta6)) * k @ k        # rotation about s by theta6
-    cp, sp, cx, sx = np.cos(psi6), np.sin(psi6), np.cos(xi6), np.sin(xi6)
-    axle = steer @ [0, 1, 0]
-    z_c = steer @ [sp, 0, cp]
-    x_m = steer @ [cp * cx, sx, -sp * cx]
-    omega = dth5 * (axle - np.array([0, 1, 0]))      # C_6 = Rot(s(theta5), theta6) Rot_y(psi6) turns with theta5
+    dcenter = ca.jacobian(center, theta4)
+    k = ca.skew(_e(th5))
+    steer = ca.SX.eye(3) + ca.sin(theta6) * k + (1 - ca.cos(theta6)) * (k @ k)     # rotation about s by theta6
+    cp, sp, cx, sx = ca.cos(psi6), ca.sin(psi6), ca.cos(xi6), ca.sin(xi6)
+    axle = steer @ ca.vertcat(0, 1, 0)
+    z_c = steer @ ca.vertcat(sp, 0, cp)
+    x_m = steer @ ca.vertcat(cp * cx, sx, -sp * cx)
+    omega = dth5 * (axle - ca.vertcat(0, 1, 0))   # C_6 = Rot(s(theta5), theta6) Rot_y(psi6) turns with theta5
     return center, dcenter, omega, axle, z_c, x_m
 
+
+def _wheel_rates(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, xi, steer, p):
+    """Eq. 13 with resolved signs (see wheel_rates), on CasADi expressions; theta[2] must be a symbol."""
+    rw, l2, l3, l4 = p["R_w"], p["bogie_y"], p["bogie_z"], p["bogie_half"]
+    out = []
+    for i, th, side, front in ((1, 0, 1, 1), (2, 0, 1, -1), (3, 1, -1, 1), (4, 1, -1, -1)):
+        s_th = ca.sin(theta[th])
+        num = (xdot_d - side * l2 * phidot_d - front * l4 * s_th * theta_dot[th]
+               - (l3 + front * l4 * s_th) * psi_dot[i - 1])
+        out.append(num / (rw * ca.cos(psi[i - 1]) * ca.cos(xi[i - 1])))
+    th3, ps5, xi5, l6 = steer[0], psi[4], xi[4], p["rear_z"]
+    out.append((xdot_d - l6 * ca.cos(th3) * psi_dot[4] + l6 * ca.tan(ps5) * ca.sin(th3) * phidot_d)
+               / (rw * (ca.cos(th3) * ca.cos(ps5) * ca.cos(xi5) - ca.sin(th3) * ca.sin(xi5))))
+    c, dc, w, a, z, x_m = _wheel6(theta[2], steer[1], psi[5], xi[5], p)
+    b_x = xdot_d - ca.cross(w, c)[0] * theta_dot[2] + dc[0] * theta_dot[2] - ca.cross(a, c)[0] * psi_dot[5]
+    b_phi = phidot_d + w[2] * theta_dot[2] + a[2] * psi_dot[5]
+    out.append((z[2] * b_x + ca.cross(z, c)[0] * b_phi) / (rw * z[2] * x_m[0]))
+    return ca.vertcat(*out)
+
+
+def _turn_centers(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, p):
+    """Eqs. 14-20 for phidot_d != 0 (see turn_centers): the fixed wheels' turn centers (4 x 3) and their mean."""
+    zero6 = ca.DM.zeros(6)
+    rates = _wheel_rates(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, zero6, ca.DM.zeros(2), p)
+    rows = []
+    for i, th, side, front in ((1, 0, 1, 1), (2, 0, 1, -1), (3, 1, -1, 1), (4, 1, -1, -1)):
+        pivot = ca.vertcat(p["bogie_x"], side * p["bogie_y"], p["bogie_z"])
+        r_i = p["R_w"] * rates[i - 1] / (phidot_d / ca.cos(psi[i - 1]))
+        rows.append((pivot + front * p["bogie_half"] * _e(theta[th]) + r_i * ca.vertcat(0, 1, 0)).T)
+    centers = ca.vertcat(*rows)
+    return centers, (ca.sum1(centers) / 4).T
+
+
+def _steer_to(d, lean):
+    """Steering angle whose axle, projected on R's x-y plane, is (-lean s, c) and points along d = (dx, dy) or
+    its opposite (Eq. 22 with its lost minus sign: atan2(-sign(r_y) r_x, |r_y|); lean = sin of the steering
+    axis' elevation, 1 for wheel 5)."""
+    sgn = ca.if_else(d[1] >= 0, 1, -1)
+    return ca.atan2(-sgn * d[0], lean * ca.fabs(d[1]))
+
+
+def _steering_angles(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, p):
+    """Eqs. 14-22 (see steering_angles); (0, 0) when phidot_d = 0 (straight), without dividing by it."""
+    turning = phidot_d != 0
+    phid = ca.if_else(turning, phidot_d, 1)
+    _, center = _turn_centers(xdot_d, phid, theta, theta_dot, psi, psi_dot, p)
+    c5 = ca.vertcat(p["rear_x"], 0, p["rear_z"])
+    th5, _, c_pt = _fork(theta[2], p)
+    c6 = c_pt - p["fork_wheel"] * _e(th5)
+    return (ca.if_else(turning, _steer_to(center - c5, 1.0), 0),
+            ca.if_else(turning, _steer_to(center - c6, ca.sin(th5)), 0))
+
+
+def drive_symbols():
+    """The symbols every drive function takes, in order: xdot_d, phidot_d, theta[3] = (theta1, theta2, theta4),
+    theta_dot[3], psi[6], psi_dot[6], xi[6], steer[2] = (theta3, theta6), par[len(KIN_PARAMS)]."""
+    sym = ca.SX.sym
+    return dict(xdot_d=sym("xdot_d"), phidot_d=sym("phidot_d"), theta=sym("theta", 3), theta_dot=sym("theta_dot", 3),
+                psi=sym("psi", 6), psi_dot=sym("psi_dot", 6), xi=sym("xi", 6), steer=sym("steer", 2),
+                par=sym("par", len(KIN_PARAMS)))
+
+
+def drive_expressions(s: dict) -> dict:
+    """Wheel rates (Eq. 13), steering angles (Eqs. 14-22) and the mean turn center for the symbols of
+    drive_symbols() (the parameters are s["par"] in KIN_PARAMS order)."""
+    p = {n: s["par"][k] for k, n in enumerate(KIN_PARAMS)}
+    args = (s["xdot_d"], s["phidot_d"], s["theta"], s["theta_dot"], s["psi"], s["psi_dot"])
+    rates = _wheel_rates(*args, s["xi"], s["steer"], p)
+    th3, th6 = _steering_angles(*args, p)
+    turning = s["phidot_d"] != 0
+    centers, center = _turn_centers(s["xdot_d"], ca.if_else(turning, s["phidot_d"], 1), *args[2:], p)
+    return dict(rates=rates, steer=ca.vertcat(th3, th6), centers=centers, center=center)
+
+
+@lru_cache(maxsize=1)
+def drive_functions() -> dict:
+    """CasADi Functions of drive_symbols(): wheel_rates -> 6, steering -> 2, turn_centers -> (4 x 3, 1 x 3)."""
+    s = drive_symbols()
+    e = drive_expressions(s)
+    common = [s[k] for k in ("xdot_d", "phidot_d", "theta", "theta_dot", "psi", "psi_dot")]
+    return dict(
+        wheel_rates=ca.Function("wheel_rates", common + [s["xi"], s["steer"], s["par"]], [e["rates"]]),
+        steering=ca.Function("steering", common + [s["par"]], [e["steer"]]),
+        turn_centers=ca.Function("turn_centers", common + [s["par"]], [e["centers"], e["center"]]))
+
+
+def _par_vector(p):
+    p = params(p)
+    return np.array([p[n] for n in KIN_PARAMS], dtype=float)
+
+
+def _num(v):
+    return np.asarray(v, dtype=float).reshape(-1)
+
+
+# ---------------------------------------------------------------- numpy front ends
 
 def wheel_rates(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, xi, steer, p=None):
     """Eq. 13 with resolved signs: the six gammadot in closed form (same arguments as wheel_rates_numeric).
@@ -206,23 +299,10 @@ def wheel_rates(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, xi, steer, p=N
       b_phi = phidot_d + sum(W_z qdot)            + a_z psidot
       gammadot = (z_z b_x + (z x c)_x b_phi) / (R_w z_z x_M,x)
     (the combination (z_z, (z x c)_x) of the x and yaw rows annihilates the slip column, Eq. 11's projection);
-    wheel 6 is evaluated in this form, its theta5 from the four-bar."""
-    p = params(p)
-    rw, l1, l2, l3, l4 = p["R_w"], p["bogie_x"], p["bogie_y"], p["bogie_z"], p["bogie_half"]
-    out = np.zeros(6)
-    for i, th, thd, side, front in ((1, 0, 0, 1, 1), (2, 0, 0, 1, -1), (3, 1, 1, -1, 1), (4, 1, 1, -1, -1)):
-        s_th = np.sin(theta[th])
-        num = (xdot_d - side * l2 * phidot_d - front * l4 * s_th * theta_dot[thd]
-               - (l3 + front * l4 * s_th) * psi_dot[i - 1])
-        out[i - 1] = num / (rw * np.cos(psi[i - 1]) * np.cos(xi[i - 1]))
-    th3, ps5, xi5, l6 = steer[0], psi[4], xi[4], p["rear_z"]
-    out[4] = ((xdot_d - l6 * np.cos(th3) * psi_dot[4] + l6 * np.tan(ps5) * np.sin(th3) * phidot_d)
-              / (rw * (np.cos(th3) * np.cos(ps5) * np.cos(xi5) - np.sin(th3) * np.sin(xi5))))
-    c, dc, w, a, z, x_m = _wheel6(theta[2], steer[1], psi[5], xi[5], p)
-    b_x = xdot_d - np.cross(w, c)[0] * theta_dot[2] + dc[0] * theta_dot[2] - np.cross(a, c)[0] * psi_dot[5]
-    b_phi = phidot_d + w[2] * theta_dot[2] + a[2] * psi_dot[5]
-    out[5] = (z[2] * b_x + np.cross(z, c)[0] * b_phi) / (rw * z[2] * x_m[0])
-    return out
+    wheel 6 is evaluated in this form, its theta5 from the four-bar. One CasADi graph (_wheel_rates) gives these
+    numbers and the controller FMU's C."""
+    f = drive_functions()["wheel_rates"]
+    return _num(f(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, xi, steer, _par_vector(p)))
 
 
 # ---------------------------------------------------------------- steering angles (Eqs. 14-22)
@@ -232,22 +312,9 @@ def turn_centers(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, p=None):
     xdot_i = R_w gammadot_i (xi = 0, Eq. 14), phidot_i = phidot_d / cos(psi_i) (the turn rate about the contact
     normal whose yaw part is phidot_d, Eq. 15), r_i = xdot_i / phidot_i (Eq. 16), c_i = T_R,Ci (0, r_i, 0, 1)
     (Eq. 17: r_i along the axle from the contact frame's origin, the wheel center)."""
-    p = params(p)
-    rates = wheel_rates(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, np.zeros(6), (0.0, 0.0), p)
-    centers = np.zeros((4, 3))
-    for i, th, side, front in ((1, 0, 1, 1), (2, 0, 1, -1), (3, 1, -1, 1), (4, 1, -1, -1)):
-        pivot = np.array([p["bogie_x"], side * p["bogie_y"], p["bogie_z"]])
-        r_i = p["R_w"] * rates[i - 1] / (phidot_d / np.cos(psi[i - 1]))
-        centers[i - 1] = pivot + front * p["bogie_half"] * _e(theta[th]) + r_i * np.array([0, 1, 0])
-    return centers, centers.mean(axis=0)
-
-
-def _steer_to(d, lean):
-    """Steering angle whose axle, projected on R's x-y plane, is (-lean s, c) and points along d = (dx, dy) or
-    its opposite (Eq. 22 with its lost minus sign: atan2(-sign(r_y) r_x, |r_y|); lean = sin of the steering
-    axis' elevation, 1 for wheel 5)."""
-    sgn = np.copysign(1.0, d[1])
-    return float(np.arctan2(-sgn * d[0], lean * abs(d[1])))
+    centers, center = drive_functions()["turn_centers"](xdot_d, phidot_d, theta, theta_dot, psi, psi_dot,
+                                                        _par_vector(p))
+    return np.array(centers), _num(center)
 
 
 def steering_angles(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, p=None):
@@ -257,11 +324,5 @@ def steering_angles(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, p=None):
     (wheel 5) and the coupler axis s = e(theta5) in R's x-z plane (wheel 6), the vector from the wheel center to
     the turn center is projected on R's x-y plane. Wheel 6's axle (0, 1, 0) turned about s by theta6 projects to
     (-sin(theta5) sin(theta6), cos(theta6)), hence the sin(theta5) in its atan2."""
-    if phidot_d == 0:
-        return 0.0, 0.0
-    p = params(p)
-    _, center = turn_centers(xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, p)
-    c5 = np.array([p["rear_x"], 0.0, p["rear_z"]])
-    th5, _, c_pt = fork(theta[2], p)
-    c6 = c_pt - p["fork_wheel"] * _e(th5)
-    return _steer_to(center - c5, 1.0), _steer_to(center - c6, np.sin(th5))
+    th = _num(drive_functions()["steering"](xdot_d, phidot_d, theta, theta_dot, psi, psi_dot, _par_vector(p)))
+    return float(th[0]), float(th[1])
