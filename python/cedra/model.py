@@ -25,6 +25,7 @@ PLANAR_MAP = {"y": None, "yaw": None, "roll": None, "theta2": "theta1", "theta3"
               "gamma3": "gamma1", "gamma4": "gamma2"}
 NO_STEER_MAP = {"theta3": None, "theta6": None}
 SETTLE = ["z", "pitch", "roll", "theta1", "theta2", "theta4"]
+XI_SPEED = 1e-3      # m/s: below it the rotational slip angle xi fades to 0 (its direction is undefined at rest)
 
 
 @dataclass(frozen=True)
@@ -167,6 +168,9 @@ class CedraModel:
         o.append((_out("bogie.theta[2]", "rad", "right bogie angle theta2"), qf[IDX["theta2"]]))
         o.append((_out("fork.theta4", "rad", "front four-bar lower link angle theta4"), qf[IDX["theta4"]]))
         o.append((_out("fork.theta5", "rad", "front four-bar coupler angle theta5 (dependent)"), self.rover.theta5))
+        o.append((_out("bogie.rate[1]", "rad/s", "left bogie angle rate thetadot1"), qd[IDX["theta1"]]))
+        o.append((_out("bogie.rate[2]", "rad/s", "right bogie angle rate thetadot2"), qd[IDX["theta2"]]))
+        o.append((_out("fork.rate4", "rad/s", "front four-bar lower link rate thetadot4"), qd[IDX["theta4"]]))
         if self.opt.steering:
             o.append((_out("steer.theta[1]", "rad", "steering angle of wheel 5 (theta3)"), qf[IDX["theta3"]]))
             o.append((_out("steer.theta[2]", "rad", "steering angle of wheel 6 (theta6)"), qf[IDX["theta6"]]))
@@ -189,11 +193,29 @@ class CedraModel:
                           geo.point[j]))
             o.append((_out(f"wheel[{k}].psi", "rad", f"wheel {k} contact slope angle"), geo.slope))
             o.append((_out(f"wheel[{k}].slip", "m/s", f"wheel {k} slip speed at the contact"), c["slip"]))
+            o += self._kinematic_outputs(wh, geo)
             if self.rigid:
                 o.append((_out(f"wheel[{k}].gap", "m", f"wheel {k} rim height above the terrain (negative: "
                                                          "penetration; in contact: the constraint drift)"),
                           -geo.depth))
         return o
+
+    def _kinematic_outputs(self, wh, geo):
+        """What the paper's inverse kinematics and steering (kinematics.py, the controller FMU) measure at wheel k,
+        in their conventions: the contact angle psi_i measured in the rover frame R (the contact normal's angle
+        about the axle from the wheel's psi = 0 normal, positive by the right-hand rule about the axle), its rate,
+        and the rotational slip angle xi_i (the direction of the wheel center's travel in the contact plane,
+        from the wheel's heading x_C: atan(v_y / v_x), smoothly 0 below XI_SPEED so a wheel at rest reads 0)."""
+        k, n = wh.index, geo.normal
+        psi_r = ca.atan2(ca.dot(ca.cross(wh.up, n), wh.axle), ca.dot(wh.up, n))
+        vc = geo.frame.T @ wh.velocity
+        xi = ca.atan(vc[1] * vc[0] / (vc[0] ** 2 + XI_SPEED ** 2))
+        return [(_out(f"wheel[{k}].psi_R", "rad", f"wheel {k} contact angle psi_{k} in the rover frame (the paper's "
+                      "Eqs. 9-22)"), psi_r),
+                (_out(f"wheel[{k}].psi_R_rate", "rad/s", f"wheel {k} rate of the contact angle psi_R"),
+                 self.rate(psi_r)),
+                (_out(f"wheel[{k}].xi", "rad", f"wheel {k} rotational slip angle xi_{k}: the center's direction of "
+                      "travel in the contact plane from the wheel's heading"), xi)]
 
     def functions(self) -> dict[str, ca.Function]:
         q, u, par, inp = self.q, self.u, self.par, self.inp

@@ -27,6 +27,8 @@ class Wheel:
     axle: ca.SX         # world unit vector
     omega: ca.SX        # world angular velocity of the wheel
     velocity: ca.SX     # world velocity of the center
+    up: ca.SX           # world unit vector: the contact frame's normal at psi = 0 in the kinematics' convention
+    #                     (kinematics.contact_frame: the carrier's own rotation undone, so psi is measured from R)
 
 
 @dataclass
@@ -88,7 +90,7 @@ def describe(qf, rate, p, tau, steer_cmd):
         w_bogie = w_body - R @ EY * (d["theta1"] if side > 0 else d["theta2"])
         for idx, sign in ((front, 1), (rear, -1)):
             c = world(T_bogie, ca.vertcat(sign * p["bogie_half"], 0, 0))
-            bogie_wheels.append((idx, c, R @ EY, w_bogie + R @ EY * d[f"gamma{idx}"], R))
+            bogie_wheels.append((idx, c, R @ EY, w_bogie + R @ EY * d[f"gamma{idx}"], R, R @ EZ))
 
     # rear wheel: steering axis along body z
     R5 = rot_z(th3)
@@ -114,9 +116,11 @@ def describe(qf, rate, p, tau, steer_cmd):
                    ca.diag(ca.vertcat(p["I_Bxx"], p["I_Byy"], p["I_Bzz"])), R),
               Body("fork", p["m_F"], fork_mass, w_coupler, p["I_F"] * ca.SX.eye(3), ca.SX.eye(3))]
     wheels = []
-    for idx, c, axle, w, frame in bogie_wheels + [(5, c5, axle5, w5, R @ R5), (6, c6, axle6, w6, R @ R6)]:
+    up6 = R @ R6 @ rot_y(theta5) @ EZ      # kinematics: C6 = ... Rot_x(theta6) Rot_y(theta5 + psi6)
+    for idx, c, axle, w, frame, up in bogie_wheels + [(5, c5, axle5, w5, R @ R5, R @ EZ),
+                                                     (6, c6, axle6, w6, R @ R6, up6)]:
         bodies.append(Body(f"wheel{idx}", mw, c, w, I_wheel, frame))
-        wheels.append(Wheel(idx, c, axle, w, rate(c)))
+        wheels.append(Wheel(idx, c, axle, w, rate(c), up))
     wheels.sort(key=lambda wh: wh.index)
 
     # torques on coordinates
