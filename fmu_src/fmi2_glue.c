@@ -1,95 +1,40 @@
-/* FMI 2.0 Co-Simulation interface of a cedra FMU (hand-written, the same for every model).
+/* FMI 2.0 Co-Simulation interface of a cedra FMU (hand-written, the same for every FMU): the generic part.
  *
- * Reference-FMUs style: the instance holds one plain struct `cedra_state` (time, x, inputs, parameters, start
- * values, solver settings and counters, status flags, phase), so fmi2GetFMUstate/SetFMUstate are struct copies
- * and serialization is a memcpy with a size/magic/GUID check. Scratch memory (CasADi work arrays, LU factors,
- * solver workspace) lives outside the state.
+ * Reference-FMUs style: the instance holds one plain struct `cedra_state` (time, inputs, parameters, outputs,
+ * status flags, phase, and the block's own state: glue.h), so fmi2GetFMUstate/SetFMUstate are struct copies
+ * and serialization is a memcpy with a checksum and a check of every field. Scratch memory lives outside the
+ * state. What happens between communication points is the block's (plant.c: an integrated model; controller.c:
+ * a sampled controller).
  *
  * Logging: messages with a status other than fmi2OK (warnings, discards, errors) are always sent to the logger;
  * logEvents messages (initialization, settle) only when debug logging is on for logEvents or logAll.
  * Errors caused by a bad argument or call order leave the instance as it was (the call has no effect): a call
- * checks everything it was given before it writes anything. fmi2DoStep returns fmi2OK only after it integrated the
- * whole communication step, and its cost is bounded by solver.max_steps and solver.max_wall_time.
+ * checks everything it was given before it writes anything. fmi2DoStep returns fmi2OK only after the block did
+ * the whole communication step, within the block's bound on its cost.
  */
 #include <math.h>
 #include <stdarg.h>
-#include <stdint.h>
 #include <stdio.h>
 #include <string.h>
 
-#include "fmi2Functions.h"
+#include "glue.h"
 
-#include "cedra_vars.h"
-#include "heightmap.h"
-#include "model_glue.h"
-#include "solver.h"
-
-#define NQ CEDRA_NQ
-#define NZ CEDRA_NZ
-#define NX CEDRA_NX
-#define DIM(n) ((n) > 0 ? (n) : 1)
-#define STATE_MAGIC 0xCED2A0F2u
-#define MSG_LEN 512
+#define STATE_MAGIC 0xCED2A0F3u
 #define MAX_START_TIME 1e9          /* s, see fmi2SetupExperiment */
 
-enum phase {
-    PH_INSTANTIATED = 1 << 0,
-    PH_INIT = 1 << 1,
-    PH_STEP_COMPLETE = 1 << 2,
-    PH_STEP_FAILED = 1 << 3,    /* a step was discarded: fmi2Terminated is true */
-    PH_TERMINATED = 1 << 4,
-};
 #define PH_ANY (PH_INSTANTIATED | PH_INIT | PH_STEP_COMPLETE | PH_STEP_FAILED | PH_TERMINATED)
 #define PH_GET (PH_INIT | PH_STEP_COMPLETE | PH_STEP_FAILED | PH_TERMINATED)
 #define PH_SET (PH_INSTANTIATED | PH_INIT | PH_STEP_COMPLETE)
 
-enum log_cat { CAT_EVENTS, CAT_WARNING, CAT_DISCARD, CAT_ERROR, CAT_FATAL, CAT_ALL, N_CATS };
 static const char *const CAT_NAMES[N_CATS] = {"logEvents", "logStatusWarning", "logStatusDiscard",
                                                "logStatusError", "logStatusFatal", "logAll"};
 
-typedef struct {
-    unsigned int magic;
-    unsigned int size;
-    char guid[64];
-    int phase;
-    double time;
-    double start_time;
-    double last_good_time;
-    int terminated;                 /* fmi2Terminated status */
-    int outputs_valid;              /* y (and x) agree with the current settings */
-    double x[NX];
-    double inp[DIM(CEDRA_NI)];
-    double par[DIM(CEDRA_NP)];
-    double y[DIM(CEDRA_NY)];
-    double q_start[NQ];
-    double u_start[NQ];
-    int settle;
-    int tol_explicit;               /* solver.tol was set by the user: the importer's tolerance does not replace it */
-    solver_settings solver;
-    solver_stats stats;
-    uint64_t checksum;              /* of a serialized state: FNV-1a over its bytes with this field zero */
-} cedra_state;
-
-typedef struct {
-    cedra_state s;
-    char *name;
-    fmi2CallbackLogger logger;
-    fmi2CallbackAllocateMemory alloc;
-    fmi2CallbackFreeMemory free;
-    fmi2ComponentEnvironment env;
-    int log_on[N_CATS];
-    model_ws *ws;
-    double *work;                   /* solver workspace (largest over the methods) */
-    double x_save[NX];
-    double y_tmp[DIM(CEDRA_NY)];
-    char msg[MSG_LEN];
-    heightmap terrain;              /* heightmap scenes: resources/heightmap.txt (constant: not FMU state) */
-} instance;
+double time_resolution(double t) { return 1e-12 * fmax(1.0, fabs(t)); }
 
 /* ------------------------------------------------------------------------------------------------ logging */
 
-static void log_msg(instance *c, fmi2Status status, int cat, const char *fmt, ...) {
-    char text[MSG_LEN], esc[2 * MSG_LEN];
+void log_msg(instance *c, fmi2Status status, int cat, const char *fmt, ...) {
+    char text[2 * MSG_LEN], esc[4 * MSG_LEN];
     va_list ap;
     if (!c || !c->logger) return;
     if (status == fmi2OK && !(c->log_on[cat] || c->log_on[CAT_ALL])) return;
@@ -128,28 +73,6 @@ static int allowed(instance *c, const char *fn, int mask) {
 
 /* -------------------------------------------------------------------------------------------- state setup */
 
-/* the solver settings by the variable table's index (variables.py: 0 method, 1 tol, 2 h_max, 3 max_steps,
- * 4 max_wall_time) */
-static double solver_value(const solver_settings *s, int index) {
-    switch (index) {
-        case 0: return (double)s->method;
-        case 1: return s->tol;
-        case 2: return s->h_max;
-        case 3: return (double)s->max_steps;
-        default: return s->max_wall;
-    }
-}
-
-static void solver_store(solver_settings *s, int index, double d) {
-    switch (index) {
-        case 0: s->method = (int)d; break;
-        case 1: s->tol = d; break;
-        case 2: s->h_max = d; break;
-        case 3: s->max_steps = (long)d; break;
-        default: s->max_wall = d; break;
-    }
-}
-
 static void set_defaults(instance *c, double start_time) {
     cedra_state *s = &c->s;
     memset(s, 0, sizeof *s);
@@ -160,44 +83,7 @@ static void set_defaults(instance *c, double start_time) {
     s->time = s->start_time = s->last_good_time = start_time;
     for (int i = 0; i < CEDRA_NP; i++) s->par[i] = CEDRA_PAR_START[i];
     for (int i = 0; i < CEDRA_NI; i++) s->inp[i] = CEDRA_INP_START[i];
-    for (int i = 0; i < NQ; i++) s->q_start[i] = CEDRA_Q_START[i];
-    for (int i = 0; i < CEDRA_NVARS; i++) {
-        const cedra_var *v = &CEDRA_VARS[i];
-        if (v->kind == CEDRA_K_U_START) s->u_start[v->index] = v->start;
-        if (v->kind == CEDRA_K_SETTLE) s->settle = v->start != 0.0;
-        if (v->kind == CEDRA_K_SOLVER) solver_store(&s->solver, v->index, v->start);
-    }
-}
-
-/* x from the start values (settled if start.settle) and the outputs there; 0 or 1 (logged, the state unchanged) */
-static int initial_state(instance *c, const char *fn) {
-    cedra_state *s = &c->s;
-    double x[NX], *q = x, *u = x + NQ;
-    if (s->outputs_valid) return 0;
-    model_bind(c->ws, s->inp, s->par);
-    memcpy(q, s->q_start, sizeof(double) * NQ);
-    memcpy(u, s->u_start, sizeof(double) * NQ);
-    for (int i = 0; i < NZ; i++) x[2 * NQ + i] = 0.0;
-    if (s->settle) {
-        if (model_settle(c->ws, q)) {
-            log_msg(c, fmi2Error, CAT_ERROR, "%s: static equilibrium at the start failed: %s", fn,
-                    model_message(c->ws));
-            return 1;
-        }
-        log_msg(c, fmi2OK, CAT_EVENTS, "%s: settled the start pose in static equilibrium", fn);
-    }
-    if (!model_check(c->ws, q, u)) {
-        log_msg(c, fmi2Error, CAT_ERROR, "%s: the start state cannot be evaluated: %s", fn, model_message(c->ws));
-        return 1;
-    }
-    if (model_outputs(c->ws, x, c->y_tmp)) {
-        log_msg(c, fmi2Error, CAT_ERROR, "%s: outputs at the start: %s", fn, model_message(c->ws));
-        return 1;
-    }
-    memcpy(s->x, x, sizeof x);
-    memcpy(s->y, c->y_tmp, sizeof(double) * CEDRA_NY);
-    s->outputs_valid = 1;
-    return 0;
+    block_defaults(s);
 }
 
 /* ---------------------------------------------------------------------------------------- generic functions */
@@ -228,57 +114,10 @@ fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn, size_t
 }
 
 static void free_instance(instance *c) {
-    fmi2CallbackFreeMemory fr = c->free;
-    heightmap_release(&c->terrain, fr);
-    if (c->work) fr(c->work);
-    if (c->ws) fr(c->ws);
-    if (c->name) fr(c->name);
-    fr(c);
+    block_free(c);
+    if (c->name) c->free(c->name);
+    c->free(c);
 }
-
-#if CEDRA_HEIGHTMAP
-/* the local path of a file: URI (file:///p, file:/p or file://localhost/p; %XX decoded); 0, or 1 if it is not one */
-static int uri_to_path(const char *uri, char *path, size_t len) {
-    const char *p;
-    size_t k = 0;
-    if (!uri || strncmp(uri, "file:", 5) != 0) return 1;
-    p = uri + 5;
-    if (strncmp(p, "///", 3) == 0) p += 2;
-    else if (strncmp(p, "//localhost/", 12) == 0) p += 11;
-    else if (strncmp(p, "//", 2) == 0) return 1;            /* a remote host */
-    for (; *p && k + 1 < len; p++) {
-        unsigned int ch;
-        if (p[0] == '%' && p[1] && p[2] && sscanf(p + 1, "%2x", &ch) == 1) {
-            path[k++] = (char)ch;
-            p += 2;
-        } else {
-            path[k++] = *p;
-        }
-    }
-    path[k] = '\0';
-    return *p != '\0';                                        /* too long */
-}
-
-/* reads <resources>/heightmap.txt into c->terrain; 0, or 1 (logged) */
-static int read_terrain(instance *c, const char *resource_location) {
-    char dir[4096], path[4200], why[600];
-    if (uri_to_path(resource_location, dir, sizeof dir)) {
-        log_msg(c, fmi2Error, CAT_ERROR, "fmi2Instantiate: fmuResourceLocation %s is not a local file: URI "
-                "(the heightmap terrain is read from resources/heightmap.txt)",
-                resource_location ? resource_location : "(NULL)");
-        return 1;
-    }
-    size_t n = strlen(dir);
-    snprintf(path, sizeof path, "%s%sheightmap.txt", dir, n > 0 && dir[n - 1] == '/' ? "" : "/");
-    if (heightmap_read(&c->terrain, path, c->alloc, c->free, why, sizeof why)) {
-        log_msg(c, fmi2Error, CAT_ERROR, "fmi2Instantiate: %s", why);
-        return 1;
-    }
-    log_msg(c, fmi2OK, CAT_EVENTS, "fmi2Instantiate: terrain %s: %d x %d heights", path, c->terrain.nx,
-            c->terrain.ny);
-    return 0;
-}
-#endif
 
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
@@ -318,30 +157,18 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     c->alloc = functions->allocateMemory;
     c->free = functions->freeMemory;
     c->env = functions->componentEnvironment;
-    size_t nw = 0;
-    for (int m = 0; m < SOLVER_N_METHODS; m++) {
-        size_t w = solver_workspace_size(m, NX);
-        if (w > nw) nw = w;
-    }
     c->name = (char *)c->alloc(strlen(instanceName) + 1, 1);
-    c->ws = (model_ws *)c->alloc(1, model_ws_size());
-    c->work = (double *)c->alloc(nw > 0 ? nw : 1, sizeof(double));
-    if (!c->name || !c->ws || !c->work) {
+    if (!c->name) {
         log_msg(&tmp, fmi2Fatal, CAT_FATAL, "fmi2Instantiate: out of memory");
         free_instance(c);
         return NULL;
     }
     strcpy(c->name, instanceName);
     for (int j = 0; j < N_CATS; j++) c->log_on[j] = loggingOn != fmi2False;
-#if CEDRA_HEIGHTMAP
-    if (read_terrain(c, fmuResourceLocation)) {
+    if (block_instantiate(c, fmuResourceLocation)) {
         free_instance(c);
         return NULL;
     }
-    model_bind_terrain(c->ws, &c->terrain);
-#else
-    (void)fmuResourceLocation;
-#endif
     set_defaults(c, 0.0);
     return (fmi2Component)c;
 }
@@ -357,24 +184,16 @@ fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined,
     if (!c) return fmi2Error;
     if (!allowed(c, "fmi2SetupExperiment", PH_INSTANTIATED)) return fmi2Error;
     if (!isfinite(startTime)) return FAIL(c, "fmi2SetupExperiment: startTime = %g is not finite", startTime);
-    /* the solvers resolve time to 1e-12 |t| (solver_time_resolution): beyond 1e9 s not even a 1 ms step could be
+    /* the FMU resolves time to 1e-12 |t| (time_resolution): beyond 1e9 s not even a 1 ms step could be
      * resolved, and at 1e300 a step would not advance time at all */
     if (fabs(startTime) > MAX_START_TIME)
-        return FAIL(c, "fmi2SetupExperiment: startTime = %g is beyond +-%g s, where the embedded solvers cannot "
-                    "resolve time steps below %g s", startTime, MAX_START_TIME, solver_time_resolution(MAX_START_TIME));
+        return FAIL(c, "fmi2SetupExperiment: startTime = %g is beyond +-%g s, where the FMU cannot resolve time "
+                    "steps below %g s", startTime, MAX_START_TIME, time_resolution(MAX_START_TIME));
     if (stopTimeDefined && !(stopTime >= startTime))
         return FAIL(c, "fmi2SetupExperiment: stopTime = %g is before startTime = %g", stopTime, startTime);
     if (toleranceDefined && !(tolerance > 0 && isfinite(tolerance)))
         return FAIL(c, "fmi2SetupExperiment: tolerance = %g must be > 0 and finite", tolerance);
-    if (toleranceDefined && c->s.tol_explicit) {
-        log_msg(c, fmi2OK, CAT_EVENTS, "fmi2SetupExperiment: tolerance %g not used: solver.tol = %g was set "
-                "explicitly", tolerance, c->s.solver.tol);
-    } else if (toleranceDefined) {
-        c->s.solver.tol = tolerance;
-        c->s.outputs_valid = 0;
-        log_msg(c, fmi2OK, CAT_EVENTS, "fmi2SetupExperiment: the embedded solver's tolerance solver.tol = %g (the "
-                "importer's tolerance)", tolerance);
-    }
+    if (toleranceDefined) block_tolerance(c, tolerance);
     c->s.time = c->s.start_time = c->s.last_good_time = startTime;
     return fmi2OK;
 }
@@ -392,10 +211,9 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     instance *c = (instance *)comp;
     if (!c) return fmi2Error;
     if (!allowed(c, "fmi2ExitInitializationMode", PH_INIT)) return fmi2Error;
-    if (initial_state(c, "fmi2ExitInitializationMode")) return fmi2Error;
+    if (block_initialize(c, "fmi2ExitInitializationMode")) return fmi2Error;
     c->s.phase = PH_STEP_COMPLETE;
     c->s.last_good_time = c->s.time;
-    memset(&c->s.stats, 0, sizeof c->s.stats);
     log_msg(c, fmi2OK, CAT_EVENTS, "fmi2ExitInitializationMode: initialized at t=%g", c->s.time);
     return fmi2OK;
 }
@@ -453,19 +271,11 @@ static int get_value(instance *c, const char *fn, const cedra_var *v, double *ou
     switch (v->kind) {
         case CEDRA_K_PAR: *out = s->par[v->index]; return 0;
         case CEDRA_K_INP: *out = s->inp[v->index]; return 0;
-        case CEDRA_K_Q_START: *out = s->q_start[v->index]; return 0;
-        case CEDRA_K_U_START: *out = s->u_start[v->index]; return 0;
-        case CEDRA_K_SETTLE: *out = s->settle; return 0;
-        case CEDRA_K_SOLVER: *out = solver_value(&s->solver, v->index); return 0;
-        case CEDRA_K_STAT:
-            *out = (double)(v->index == 0 ? s->stats.steps : v->index == 1 ? s->stats.rejected
-                                                                          : s->stats.rhs_evals);
-            return 0;
         case CEDRA_K_OUT:
-            if (s->phase == PH_INIT && initial_state(c, fn)) return 1;
+            if (s->phase == PH_INIT && block_outputs(c, fn)) return 1;
             *out = s->y[v->index];
             return 0;
-        default: return 1;
+        default: return block_value(s, v, out);
     }
 }
 
@@ -566,14 +376,7 @@ static void store_value(instance *c, const cedra_var *v, double d) {
     switch (v->kind) {
         case CEDRA_K_PAR: s->par[v->index] = d; break;
         case CEDRA_K_INP: s->inp[v->index] = d; break;
-        case CEDRA_K_Q_START: s->q_start[v->index] = d; break;
-        case CEDRA_K_U_START: s->u_start[v->index] = d; break;
-        case CEDRA_K_SETTLE: s->settle = d != 0.0; break;
-        case CEDRA_K_SOLVER:
-            solver_store(&s->solver, v->index, d);
-            if (v->index == 1) s->tol_explicit = 1;
-            break;
-        default: break;
+        default: block_store(s, v, d); break;
     }
     if (s->phase & (PH_INSTANTIATED | PH_INIT)) s->outputs_valid = 0;
 }
@@ -659,8 +462,9 @@ static int all_finite(const double *v, int n) {
 static int is_flag(int v) { return v == 0 || v == 1; }
 
 /* 1 if st is a state of this FMU whose every field is one the FMU could have made: a known phase, flags 0/1,
- * finite times and states, every parameter, input and solver setting within its variable's range, counters >= 0,
- * and a state x the model can evaluate; else 0 (logged with the first reason found) */
+ * finite times and outputs, every variable the importer can set within its range, and a block state the block
+ * accepts (plant: finite x, counters >= 0, a state the model can evaluate); else 0 (logged with the first
+ * reason found) */
 static int state_valid(instance *c, const char *fn, const cedra_state *st) {
     const char *why = NULL;
     char buf[200];
@@ -668,42 +472,26 @@ static int state_valid(instance *c, const char *fn, const cedra_state *st) {
     if (st->phase != PH_INSTANTIATED && st->phase != PH_INIT && st->phase != PH_STEP_COMPLETE &&
         st->phase != PH_STEP_FAILED && st->phase != PH_TERMINATED)
         why = "its phase is not one of this FMU's";
-    else if (!is_flag(st->terminated) || !is_flag(st->outputs_valid) || !is_flag(st->settle) ||
-             !is_flag(st->tol_explicit))
+    else if (!is_flag(st->terminated) || !is_flag(st->outputs_valid))
         why = "a flag is neither 0 nor 1";
     else if (!isfinite(st->time) || !isfinite(st->start_time) || !isfinite(st->last_good_time))
         why = "a time is not finite";
-    else if (!all_finite(st->x, NX) || !all_finite(st->y, CEDRA_NY))
+    else if (!all_finite(st->y, CEDRA_NY))
         why = "the state x or the outputs are not finite";
-    else if (st->stats.steps < 0 || st->stats.rejected < 0 || st->stats.rhs_evals < 0 || st->stats.jac_evals < 0 ||
-             !(st->stats.h_next >= 0) || !isfinite(st->stats.h_next))
-        why = "a solver counter is negative or not finite";
     for (int i = 0; !why && i < CEDRA_NVARS; i++) {
         const cedra_var *v = &CEDRA_VARS[i];
         double d;
         char range[160];
-        switch (v->kind) {
-            case CEDRA_K_PAR: d = st->par[v->index]; break;
-            case CEDRA_K_INP: d = st->inp[v->index]; break;
-            case CEDRA_K_Q_START: d = st->q_start[v->index]; break;
-            case CEDRA_K_U_START: d = st->u_start[v->index]; break;
-            case CEDRA_K_SOLVER: d = solver_value(&st->solver, v->index); break;
-            default: continue;
-        }
+        if (v->causality == CEDRA_OUTPUT) continue;
+        if (v->kind == CEDRA_K_PAR) d = st->par[v->index];
+        else if (v->kind == CEDRA_K_INP) d = st->inp[v->index];
+        else if (block_value(st, v, &d)) continue;
         if (check_range(v, d, range, sizeof range)) {
             snprintf(buf, sizeof buf, "its %s %s", v->name, range);
             why = buf;
         }
     }
-    if (!why && st->outputs_valid) {
-        /* the model must accept the state (the bound inputs and parameters are the candidate's, then ours again) */
-        model_bind(c->ws, st->inp, st->par);
-        if (!model_check(c->ws, st->x, st->x + NQ)) {
-            snprintf(buf, sizeof buf, "the model cannot evaluate its state: %s", model_message(c->ws));
-            why = buf;
-        }
-        model_bind(c->ws, c->s.inp, c->s.par);
-    }
+    if (!why) why = block_state_problem(c, st, buf, sizeof buf);
     if (why) {
         log_msg(c, fmi2Error, CAT_ERROR, "%s: refused, %s", fn, why);
         return 0;
@@ -839,17 +627,6 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fmi2ValueRefer
 
 /* ------------------------------------------------------------------------------------------------- stepping */
 
-static fmi2Status discard(instance *c, double t, const char *why) {
-    cedra_state *s = &c->s;
-    memcpy(s->x, c->x_save, sizeof(double) * NX);   /* back to the last good state (time t, outputs kept) */
-    s->phase = PH_STEP_FAILED;
-    s->terminated = 1;
-    s->last_good_time = t;
-    log_msg(c, fmi2Discard, CAT_DISCARD, "fmi2DoStep: step discarded at t=%.17g, simulation terminated: %s", t,
-            why);
-    return fmi2Discard;
-}
-
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     (void)noSetFMUStatePriorToCurrentPoint;
@@ -864,28 +641,20 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint, fm
     if (!isfinite(h) || h <= 0) return FAIL(c, "fmi2DoStep: communicationStepSize = %g must be > 0", h);
     if (!isfinite(t) || fabs(t - s->time) > 1e-9 * fmax(1.0, fabs(s->time)))
         return FAIL(c, "fmi2DoStep: currentCommunicationPoint = %.17g, but the FMU is at t=%.17g", t, s->time);
-    /* a step the solvers cannot resolve would "succeed" having integrated nothing */
-    if (h < solver_time_resolution(t) || !(t + h > t))
+    /* a step the FMU cannot resolve would "succeed" having done nothing */
+    if (h < time_resolution(t) || !(t + h > t))
         return FAIL(c, "fmi2DoStep: communicationStepSize = %g is below the time resolution %g s at t=%.17g",
-                    h, solver_time_resolution(t), t);
-    /* settings or an interval that cannot be integrated within the call's budget: refused before any work */
-    if (solver_check(&s->solver, t, t + h, c->msg, sizeof c->msg)) return FAIL(c, "fmi2DoStep: refused: %s", c->msg);
-    model_bind(c->ws, s->inp, s->par);
-    memcpy(c->x_save, s->x, sizeof(double) * NX);
+                    h, time_resolution(t), t);
     c->msg[0] = '\0';
-    model_clear_message(c->ws);
-    if (solver_integrate_post(&s->solver, NX, s->x, t, t + h, model_rhs, model_jac, model_accept_step,
-                              model_post_step, c->ws, c->work, &s->stats, c->msg, sizeof c->msg))
-    {
-        char why[2 * MSG_LEN];
-        const char *m = model_message(c->ws);
-        snprintf(why, sizeof why, "%s%s%s", c->msg[0] ? c->msg : "the solver failed", m[0] ? "; model: " : "", m);
-        return discard(c, t, why);
+    if (block_refuse_step(c, t, h)) return FAIL(c, "fmi2DoStep: refused: %s", c->msg);
+    if (block_step(c, t, h) != fmi2OK) {   /* the block is back at t; the outputs are those at t */
+        s->phase = PH_STEP_FAILED;
+        s->terminated = 1;
+        s->last_good_time = t;
+        log_msg(c, fmi2Discard, CAT_DISCARD, "fmi2DoStep: step discarded at t=%.17g, simulation terminated: %s",
+                t, c->msg);
+        return fmi2Discard;
     }
-    for (int i = 0; i < NX; i++)
-        if (!isfinite(s->x[i])) return discard(c, t, "the state is not finite after the step");
-    if (model_outputs(c->ws, s->x, c->y_tmp)) return discard(c, t, model_message(c->ws));
-    memcpy(s->y, c->y_tmp, sizeof(double) * CEDRA_NY);
     s->time = t + h;
     s->last_good_time = s->time;
     return fmi2OK;

@@ -20,7 +20,7 @@ _PY = Path(__file__).resolve().parents[1] / "python"
 if str(_PY) not in sys.path:                      # importable from a checkout without installing the package
     sys.path.insert(0, str(_PY))
 
-from cedra.spec import FUNCTION_NAMES, ModelSpec  # noqa: E402
+from cedra.spec import ModelSpec  # noqa: E402
 from cedra.variables import Var, solver_defaults, units, variables  # noqa: E402
 
 GENERATION_TOOL = "cedra (CasADi code generation, hand-written FMI 2.0 CS glue)"
@@ -33,15 +33,16 @@ LOG_CATEGORIES = [
     ("logAll", "everything"),
 ]
 # C files shipped in sources/ (the model's generated file last)
-SOURCE_FILES = ["fmi2_glue.c", "model_glue.c", "solver.c", "linalg.c", "rigid.c", "heightmap.c", "cedra_model.c"]
+# the C files of each kind of block's FMU (sources/ and the build): the generic glue, the block, what it uses
+SOURCE_FILES = {
+    "plant": ["fmi2_glue.c", "plant.c", "model_glue.c", "solver.c", "linalg.c", "rigid.c", "heightmap.c",
+              "cedra_model.c"],
+    "controller": ["fmi2_glue.c", "controller.c", "cedra_model.c"],
+}
 
 
 def _fmt(x: float) -> str:
     return repr(float(x))             # shortest round-trip representation
-
-
-def function_names(spec: ModelSpec) -> list[str]:
-    return list(FUNCTION_NAMES) + (["cedra_contact"] if spec.contact == "rigid" else [])
 
 
 def spec_guid(spec: ModelSpec) -> str:
@@ -53,7 +54,7 @@ def spec_guid(spec: ModelSpec) -> str:
                              q_start=spec.q_start, settle=spec.settle_idx, contact=spec.contact,
                              nc=spec.n_contacts, table=table, stop=spec.stop_time, dt=spec.output_interval),
                         sort_keys=True, default=str).encode())
-    for name in function_names(spec):
+    for name in spec.function_names():
         h.update(name.encode())
         h.update(spec.functions[name].serialize().encode())
     return "{" + str(uuid.UUID(bytes=h.digest()[:16])) + "}"
@@ -99,7 +100,7 @@ def model_description(spec: ModelSpec, guid: str) -> etree._Element:
                           canNotUseMemoryManagementFunctions="false", canGetAndSetFMUstate="true",
                           canSerializeFMUstate="true", providesDirectionalDerivative="false")
     sf = etree.SubElement(cs, "SourceFiles")
-    for f in SOURCE_FILES:
+    for f in SOURCE_FILES[spec.block]:
         etree.SubElement(sf, "File", name=f)
     ud = etree.SubElement(root, "UnitDefinitions")
     for u in units(table):
@@ -110,8 +111,10 @@ def model_description(spec: ModelSpec, guid: str) -> etree._Element:
     lc = etree.SubElement(root, "LogCategories")
     for name, desc in LOG_CATEGORIES:
         etree.SubElement(lc, "Category", name=name, description=desc)
-    etree.SubElement(root, "DefaultExperiment", startTime="0.0", stopTime=_fmt(spec.stop_time),
-                     tolerance=_fmt(solver_defaults(spec)["tol"]), stepSize=_fmt(spec.output_interval))
+    experiment = dict(startTime="0.0", stopTime=_fmt(spec.stop_time))
+    if spec.block == "plant":       # a master passes it on to fmi2SetupExperiment: the solver's own default
+        experiment["tolerance"] = _fmt(solver_defaults(spec)["tol"])
+    etree.SubElement(root, "DefaultExperiment", **experiment, stepSize=_fmt(spec.output_interval))
     mv = etree.SubElement(root, "ModelVariables")
     for v in table:
         attrs = dict(name=v.name, valueReference=str(v.vr), description=v.description, causality=v.causality,
@@ -193,6 +196,9 @@ def vars_header(spec: ModelSpec, guid: str) -> str:
         f"#define CEDRA_NY {ny}", f"#define CEDRA_NS {ns}", "#define CEDRA_NX (2 * CEDRA_NQ + CEDRA_NZ)",
         f"#define CEDRA_RIGID {1 if spec.contact == 'rigid' else 0}", f"#define CEDRA_NC {spec.n_contacts}",
         f"#define CEDRA_HEIGHTMAP {1 if spec.heightmap_file else 0}",
+        f"#define CEDRA_CONTROLLER {1 if spec.block == 'controller' else 0}",
+        f"#define CEDRA_ND {len(spec.d_names)}",
+        f"#define CEDRA_PERIOD_PAR {[p.name for p in spec.params].index('ctrl.period') if spec.block == 'controller' else -1}",
         f"#define CEDRA_NVARS {len(table)}", "",
         arr("CEDRA_SETTLE_IDX", "int", spec.settle_idx, str),
         arr("CEDRA_Q_START", "double", spec.q_start, _c_real),

@@ -168,8 +168,10 @@ class Probe:
             assert self.raw("fmi2Terminate", self.c) == OK
 
     def drive(self) -> dict:
-        """A torque on every wheel that has one: the continuation then moves the rover."""
-        return {n: 1.0 for n in self.vars if n.startswith("tau[") and self.vars[n].causality == "input"}
+        """A torque on every wheel that has one (a plant), or a speed command (the controller): the continuation
+        then changes the outputs."""
+        return {n: 1.0 if n.startswith("tau[") else 0.3 for n in self.vars
+                if (n.startswith("tau[") or n == "cmd.v") and self.vars[n].causality == "input"}
 
     def continuation(self, phase: str) -> list[float] | None:
         """Outputs after bringing the instance to two more steps from its phase (None where nothing can run)."""
@@ -200,12 +202,17 @@ class Case:
     logged: bool = True           # False: no logger can be reached (a NULL component)
 
 
+def is_plant(md) -> bool:
+    """A plant FMU (an embedded solver) rather than the sampled drive controller."""
+    return any(v.name == "solver.method" for v in md.modelVariables)
+
+
 def _getter_setter_cases(md) -> list[Case]:
     vs = {v.name: v for v in md.modelVariables}
     real_in = next(v for v in md.modelVariables if v.causality == "input" and v.type == "Real")
     real_out = next(v for v in md.modelVariables if v.causality == "output" and v.type == "Real")
-    int_par = vs["solver.max_steps"]
-    bool_par = vs["start.settle"]
+    int_par = vs["solver.max_steps"] if is_plant(md) else vs["ctrl.mode"]
+    bool_par = vs.get("start.settle")
     n = len(md.modelVariables)
     cases = []
     null = C.POINTER(C.c_uint)()
@@ -235,6 +242,8 @@ def _getter_setter_cases(md) -> list[Case]:
                   ("fmi2GetReal", bool_par, _d), ("fmi2SetReal", bool_par, _d), ("fmi2SetInteger", bool_par, _i),
                   ("fmi2SetBoolean", int_par, _i))
     for fn, v, arr in wrong_type:
+        if v is None:           # the controller has no Boolean variable
+            continue
         cases.append(Case("unknown references and wrong types", f"{fn} on {v.name} ({v.type})", "init",
                           lambda p, fn=fn, vr=v.valueReference, arr=arr: p.raw(fn, p.c, _u([vr]), C.c_size_t(1),
                                                                                 arr([1])),
@@ -265,12 +274,16 @@ def _value_cases(md) -> list[Case]:
         if v.max is not None:
             hi = float(v.max)
             cases.append(set_real(v.name, hi + max(1.0, abs(hi)), "init"))
-    for name, value in (("solver.tol", 0.0), ("solver.tol", -1e-6), ("solver.tol", NAN), ("solver.h_max", 0.0),
-                        ("solver.h_max", -0.01), ("solver.h_max", INF), ("solver.max_wall_time", 0.0),
-                        ("solver.max_wall_time", 1e7), ("solver.max_wall_time", NAN)):
+    plant = is_plant(md)
+    reals = (("solver.tol", 0.0), ("solver.tol", -1e-6), ("solver.tol", NAN), ("solver.h_max", 0.0),
+             ("solver.h_max", -0.01), ("solver.h_max", INF), ("solver.max_wall_time", 0.0),
+             ("solver.max_wall_time", 1e7), ("solver.max_wall_time", NAN)) if plant else \
+        (("ctrl.period", 0.0), ("ctrl.period", -0.01), ("ctrl.period", INF), ("ctrl.tau_max", -1.0))
+    for name, value in reals:
         cases.append(set_real(name, value))
-    for name, value in (("solver.method", -1), ("solver.method", 3), ("solver.max_steps", 0),
-                        ("solver.max_steps", -5)):
+    integers = (("solver.method", -1), ("solver.method", 3), ("solver.max_steps", 0), ("solver.max_steps", -5)) \
+        if plant else (("ctrl.mode", -1), ("ctrl.mode", 2))
+    for name, value in integers:
         vr = vs[name].valueReference
         cases.append(Case("NaN, infinite and out-of-range values", f"{name} = {value}", "init",
                           lambda p, vr=vr, value=value: p.raw("fmi2SetInteger", p.c, _u([vr]), C.c_size_t(1),
@@ -284,8 +297,9 @@ def _value_cases(md) -> list[Case]:
                       lambda p: p.set_real({par.name: float(par.start)}), ERROR, "is fixed: it can be set only"))
     # all or nothing: a good value first, a bad one after it
     good = inputs[0].name
-    for bad_name, bad_value in ((inputs[-1].name, NAN), ("solver.tol", -1.0), (out.name, 0.0)):
-        phase = "init" if bad_name.startswith("solver.") else "step"
+    setting = "solver.tol" if plant else "ctrl.period"
+    for bad_name, bad_value in ((inputs[-1].name, NAN), (setting, -1.0), (out.name, 0.0)):
+        phase = "init" if bad_name == setting else "step"
         cases.append(Case("all-or-nothing setters", f"[{good} = 0.5, {bad_name} = {bad_value}] ({phase})", phase,
                           lambda p, b=bad_name, bv=bad_value: p.set_real({good: 0.5, b: bv}), ERROR,
                           f"variable {re.escape(bad_name)}"))
@@ -293,7 +307,7 @@ def _value_cases(md) -> list[Case]:
     cases.append(Case("all-or-nothing setters", f"[{good} = 0.5, unknown vr]", "step",
                       lambda p: p.raw("fmi2SetReal", p.c, _u([vr_good, 10**6]), C.c_size_t(2), _d([0.5, 1.0])),
                       ERROR, "unknown value reference 1000000"))
-    for name in ("solver.method", "solver.max_steps"):
+    for name in ("solver.method", "solver.max_steps") if plant else ("ctrl.mode",):
         vr = vs[name].valueReference
         cases.append(Case("all-or-nothing setters", f"[{name} = 1, {name} = -7]", "init",
                           lambda p, vr=vr: p.raw("fmi2SetInteger", p.c, _u([vr, vr]), C.c_size_t(2), _i([1, -7])),
@@ -301,7 +315,7 @@ def _value_cases(md) -> list[Case]:
     return cases
 
 
-def _call_order_cases() -> list[Case]:
+def _call_order_cases(md) -> list[Case]:
     cases = []
     not_allowed = {
         "fmi2SetupExperiment": (("init", "step", "terminated", "failed"),
@@ -323,6 +337,8 @@ def _call_order_cases() -> list[Case]:
     }
     for fn, (phases, action) in not_allowed.items():
         for phase in phases:
+            if phase == "failed" and not is_plant(md):    # nothing makes the controller discard a step
+                continue
             msg = ("terminated at t=.* after a discarded step" if fn == "fmi2DoStep" and phase == "failed"
                    else f"{fn}: not allowed in state")
             cases.append(Case("call order", f"{fn} in {phase}", phase, action, ERROR, msg))
@@ -332,7 +348,7 @@ def _call_order_cases() -> list[Case]:
     return cases
 
 
-def _step_cases() -> list[Case]:
+def _step_cases(md) -> list[Case]:
     cls = "step arguments and budgets"
     cases = [Case(cls, f"fmi2DoStep h = {h!r}", "step", lambda p, h=h: p.do_step(h), ERROR,
                   "communicationStepSize = .* must be > 0")
@@ -340,9 +356,13 @@ def _step_cases() -> list[Case]:
     cases += [Case(cls, f"fmi2DoStep at t = {t}", "step", lambda p, t=t: p.do_step(STEP, t=t), ERROR,
                    "currentCommunicationPoint = .* but the FMU is at")
               for t in (NAN, -1.0, 1.0, 1e300)]
-    cases += [Case(cls, "fmi2DoStep h = 1e-300 (below the time resolution)", "step", lambda p: p.do_step(1e-300),
-                   ERROR, "is below the time resolution"),
-              Case(cls, "fmi2DoStep h = 1e300 (beyond the step budget)", "step", lambda p: p.do_step(1e300),
+    cases.append(Case(cls, "fmi2DoStep h = 1e-300 (below the time resolution)", "step", lambda p: p.do_step(1e-300),
+                      ERROR, "is below the time resolution"))
+    if not is_plant(md):
+        return cases + [Case(cls, f"fmi2DoStep h = {h:g} s (beyond 1e6 samples)", "step",
+                             lambda p, h=h: p.do_step(h), ERROR, "refused: the communication step of .* samples")
+                        for h in (1e300, 2e6 * 0.01)]
+    cases += [Case(cls, "fmi2DoStep h = 1e300 (beyond the step budget)", "step", lambda p: p.do_step(1e300),
                    ERROR, r"refused: \w+: the interval of 1e\+300 s needs at least"),
               Case(cls, "fmi2DoStep h = 2e5 h_max (beyond 100000 steps of h_max)", "step",
                    lambda p: p.do_step(2e5 * float(p.vars["solver.h_max"].start)), ERROR,
@@ -543,7 +563,7 @@ def _instantiate_cases() -> list[Case]:
 
 
 def cases(md) -> list[Case]:
-    return (_call_order_cases() + _getter_setter_cases(md) + _value_cases(md) + _step_cases() +
+    return (_call_order_cases(md) + _getter_setter_cases(md) + _value_cases(md) + _step_cases(md) +
             _experiment_cases() + _state_cases() + _unsupported_cases() + _instantiate_cases())
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 import misuse_matrix
+from cedra.controller import CONTROLLERS, controller_spec
 from cedra.fmu import build_fmu
 from cedra.scene import load_shipped, shipped
 
@@ -15,12 +16,18 @@ REPO = Path(__file__).resolve().parents[1]
 _PATHS: dict[str, Path] = {}
 
 
-def fmu_path(scene, tmp_path_factory) -> Path:
-    if scene not in _PATHS:
-        built = REPO / "build" / f"{scene}.fmu"
-        _PATHS[scene] = built if built.exists() else build_fmu(load_shipped(scene).spec(),
-                                                               tmp_path_factory.mktemp(scene))
-    return _PATHS[scene]
+FMUS = shipped() + list(CONTROLLERS)       # every shipped plant and the drive controllers
+
+
+def fmu_path(name, tmp_path_factory) -> Path:
+    if name not in _PATHS:
+        built = REPO / "build" / f"{name}.fmu"
+        if built.exists():
+            _PATHS[name] = built
+        else:
+            spec = controller_spec(CONTROLLERS[name]) if name in CONTROLLERS else load_shipped(name).spec()
+            _PATHS[name] = build_fmu(spec, tmp_path_factory.mktemp(name))
+    return _PATHS[name]
 
 
 CLASSES = ["call order", "NULL arguments", "unknown references and wrong types",
@@ -29,7 +36,7 @@ CLASSES = ["call order", "NULL arguments", "unknown references and wrong types",
 
 
 def test_the_matrix_has_every_class_and_at_least_150_cases(tmp_path_factory):
-    for scene in shipped():
+    for scene in FMUS:
         path = fmu_path(scene, tmp_path_factory)
         assert misuse_matrix.classes(path) == CLASSES or set(misuse_matrix.classes(path)) == set(CLASSES)
         md = misuse_matrix.read_model_description(str(path))
@@ -37,7 +44,7 @@ def test_the_matrix_has_every_class_and_at_least_150_cases(tmp_path_factory):
 
 
 @pytest.mark.parametrize("cls", CLASSES)
-@pytest.mark.parametrize("scene", shipped())
+@pytest.mark.parametrize("scene", FMUS)
 def test_misuse_is_answered_as_the_standard_says(scene, cls, tmp_path_factory):
     results = misuse_matrix.run_all(fmu_path(scene, tmp_path_factory), only_cls=cls)
     assert results, f"no cases in class {cls}"

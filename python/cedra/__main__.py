@@ -8,20 +8,24 @@ from pathlib import Path
 
 
 def cmd_build(args):
+    from .controller import CONTROLLERS, controller_spec
     from .fmu import build_fmu
     from .scene import SceneError, load, load_shipped, shipped
-    names = args.scenes or shipped()
+    names = args.scenes or shipped() + list(CONTROLLERS)
     for name in names:
-        try:
-            scene = load(name) if name.endswith(".toml") else load_shipped(name)
-        except SceneError as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 2
         t0 = time.perf_counter()
-        spec = scene.spec()
+        if name in CONTROLLERS:
+            spec = controller_spec(CONTROLLERS[name])
+        else:
+            try:
+                scene = load(name) if name.endswith(".toml") else load_shipped(name)
+            except SceneError as e:
+                print(f"error: {e}", file=sys.stderr)
+                return 2
+            spec = scene.spec()
         t1 = time.perf_counter()
         path = build_fmu(spec, Path(args.out))
-        print(f"{scene.name}: {path} (model {t1 - t0:.1f} s, C code and compile {time.perf_counter() - t1:.1f} s)")
+        print(f"{spec.name}: {path} (model {t1 - t0:.1f} s, C code and compile {time.perf_counter() - t1:.1f} s)")
     return 0
 
 
@@ -54,8 +58,9 @@ def cmd_report(args):
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m cedra")
     sub = ap.add_subparsers(dest="cmd", required=True)
-    b = sub.add_parser("build", help="generate, compile and package FMUs (default: every shipped scene)")
-    b.add_argument("scenes", nargs="*", help="shipped scene names or .toml files")
+    b = sub.add_parser("build", help="generate, compile and package FMUs (default: every shipped scene and the "
+                       "drive controllers drive2d, drive3d)")
+    b.add_argument("scenes", nargs="*", help="shipped scene names, .toml files, or drive2d / drive3d")
     b.add_argument("--out", default="build")
     s = sub.add_parser("simulate", help="run the main job (the paper's bump run)")
     s.add_argument("scene", nargs="?", default="bump2d")

@@ -9,17 +9,13 @@ from pathlib import Path
 
 import casadi as ca
 
-from .spec import FUNCTION_NAMES, ModelSpec
+from .spec import ModelSpec
 
 CODEGEN_OPTIONS = {"with_header": True, "casadi_real": "double", "casadi_int": "long long int",
                    "with_mem": False, "verbose": False, "mex": False, "cpp": False, "main": False}
 # warnings CasADi's generated code triggers under -Wall -Wextra (never used for the hand-written files)
 GENERATED_CFLAGS_RELAX = ["-Wno-unused-parameter", "-Wno-unused-variable", "-Wno-unused-function",
                           "-Wno-unused-but-set-variable", "-Wno-sign-compare"]
-
-
-def function_names(spec: ModelSpec) -> list[str]:
-    return list(FUNCTION_NAMES) + (["cedra_contact"] if spec.contact == "rigid" else [])
 
 
 def dense(fn: ca.Function) -> ca.Function:
@@ -40,7 +36,7 @@ def generate_c(spec: ModelSpec, out_dir) -> tuple[Path, Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     cg = ca.CodeGenerator("cedra_model.c", CODEGEN_OPTIONS)
-    for name in function_names(spec):
+    for name in spec.function_names():
         cg.add(dense(spec.functions[name]))
     cg.generate(str(out_dir) + "/")
     return out_dir / "cedra_model.c", out_dir / "cedra_model.h"

@@ -49,27 +49,31 @@ class RoverFMU:
         self.time = start_time
 
     def set(self, values: dict):
+        """Set by name: one fmi2Set call per type (all or nothing, as the FMU's setters are)."""
+        by_type: dict[str, tuple[list, list]] = {}
         for name, value in values.items():
             v = self.vars[name]
-            if v.type == "Real":
-                self.fmu.setReal([v.valueReference], [float(value)])
-            elif v.type == "Integer":
-                self.fmu.setInteger([v.valueReference], [int(value)])
-            elif v.type == "Boolean":
-                self.fmu.setBoolean([v.valueReference], [bool(value)])
-            else:
-                raise ValueError(f"{name}: cannot set a {v.type}")
+            vrs, vals = by_type.setdefault(v.type, ([], []))
+            vrs.append(v.valueReference)
+            vals.append(float(value) if v.type == "Real" else int(value) if v.type == "Integer" else bool(value))
+        setters = {"Real": self.fmu.setReal, "Integer": self.fmu.setInteger, "Boolean": self.fmu.setBoolean}
+        for t, (vrs, vals) in by_type.items():
+            if t not in setters:
+                raise ValueError(f"{vrs}: cannot set a {t}")
+            setters[t](vrs, vals)
 
     def get(self, names) -> np.ndarray:
+        """Values by name, one fmi2Get call per type."""
         out = np.empty(len(names))
+        by_type: dict[str, tuple[list, list]] = {}
         for k, name in enumerate(names):
             v = self.vars[name]
-            if v.type == "Real":
-                out[k] = self.fmu.getReal([v.valueReference])[0]
-            elif v.type == "Integer":
-                out[k] = self.fmu.getInteger([v.valueReference])[0]
-            else:
-                out[k] = self.fmu.getBoolean([v.valueReference])[0]
+            idx, vrs = by_type.setdefault(v.type, ([], []))
+            idx.append(k)
+            vrs.append(v.valueReference)
+        getters = {"Real": self.fmu.getReal, "Integer": self.fmu.getInteger, "Boolean": self.fmu.getBoolean}
+        for t, (idx, vrs) in by_type.items():
+            out[idx] = np.asarray(getters[t](vrs), dtype=float)
         return out
 
     def step(self, t_next) -> bool:

@@ -38,6 +38,11 @@ except the contact forces, and the glue solves for accelerations and contact for
                   d(vc)/dt = W udot + bias. gap = -penetration (gap <= 0: touching). A contact force
                   lambda_k (same frame) enters as M udot = f + W' lambda. Outputs named wheel[i].Fn/Fx/Fy/mode are
                   computed by the glue from its solution (cedra_out gives 0 there).
+
+A controller (block == "controller", fmu_src/controller.c) is sampled instead of integrated: no q, u, z, no
+start values, no solver. Its discrete state xd (d_names) and outputs change only at samples:
+    cedra_sample  (inp, par, xd)        -> (y[ny], xd_next[nd])
+                  one sample from the inputs set at that moment; the parameter `ctrl.period` is the period.
 """
 from __future__ import annotations
 
@@ -53,6 +58,7 @@ CHECK_REASONS = {
 }
 
 FUNCTION_NAMES = ("cedra_M", "cedra_f", "cedra_rjac", "cedra_out", "cedra_settle", "cedra_guess", "cedra_check")
+CONTROLLER_FUNCTION_NAMES = ("cedra_sample",)
 
 
 @dataclass(frozen=True)
@@ -85,6 +91,9 @@ class ModelSpec:
     solver: dict = field(default_factory=dict)   # default solver settings: method, tol, h_max
     contact: str = "compliant"              # "rigid": cedra_contact exists and the glue solves the contact forces
     n_contacts: int = 0                     # rigid: number of contacts (wheels), in wheel order 1..n
+    block: str = "plant"                    # "plant": the ODE above in an embedded solver (fmu_src/plant.c);
+    #                                         "controller": a sampled block (fmu_src/controller.c, see below)
+    d_names: list[str] = field(default_factory=list)   # controller: discrete states, in xd order
     heightmap_file: str = ""                # terrain "heightmap": the grid file, shipped as resources/heightmap.txt;
     #                                         the generated functions call the external cedra_heightmap (its C
     #                                         implementation is fmu_src/heightmap.c)
@@ -93,10 +102,22 @@ class ModelSpec:
     def nq(self) -> int:
         return len(self.q_names)
 
+    def function_names(self) -> list[str]:
+        if self.block == "controller":
+            return list(CONTROLLER_FUNCTION_NAMES)
+        return list(FUNCTION_NAMES) + (["cedra_contact"] if self.contact == "rigid" else [])
+
     def check(self) -> None:
         """Raise ValueError if the functions do not follow the contract above."""
         nq, nz, ni, npar, ny = self.nq, len(self.z_names), len(self.inputs), len(self.params), len(self.outputs)
         ns = len(self.settle_idx)
+        if self.block not in ("plant", "controller"):
+            raise ValueError(f"model {self.name}: block {self.block!r} (plant or controller)")
+        if self.block == "controller":
+            if "ctrl.period" not in [p.name for p in self.params]:
+                raise ValueError(f"model {self.name}: a controller needs the parameter ctrl.period")
+            nd = len(self.d_names)
+            return self._check_functions({"cedra_sample": ([ni, npar, nd], [(ny, 1), (nd, 1)])})
         expected = {
             "cedra_M": ([nq, npar], [(nq, nq)]),
             "cedra_f": ([nq, nq, ni, npar], [(nq, 1), (nz, 1)]),
@@ -109,6 +130,9 @@ class ModelSpec:
         if self.contact == "rigid":
             nc = self.n_contacts
             expected["cedra_contact"] = ([nq, nq, ni, npar], [(3 * nc, nq), (3 * nc, 1), (3 * nc, 1), (nc, 1)])
+        self._check_functions(expected)
+
+    def _check_functions(self, expected: dict) -> None:
         for name, (ins, outs) in expected.items():
             fn = self.functions.get(name)
             if fn is None:

@@ -89,17 +89,41 @@ def variables(spec: ModelSpec) -> list[Var]:
         rows.append(kw)
 
     for i, p in enumerate(spec.params):
-        add(name=p.name, causality="parameter", variability="fixed", initial="exact", start=float(p.start),
-            unit=p.unit, description=p.description, type="Real", kind="par", index=i, min=p.min, max=p.max)
+        if p.type not in ("Real", "Integer"):
+            raise ValueError(f"parameter {p.name}: type {p.type} (Real or Integer)")
+        add(name=p.name, causality="parameter", variability="fixed", initial="exact",
+            start=float(p.start) if p.type == "Real" else int(p.start), unit=p.unit, description=p.description,
+            type=p.type, kind="par", index=i, min=p.min, max=p.max)
     for i, p in enumerate(spec.inputs):
         add(name=p.name, causality="input", variability="continuous", initial=None, start=float(p.start),
             unit=p.unit, description=p.description, type="Real", kind="inp", index=i, min=p.min, max=p.max)
     for i, p in enumerate(spec.outputs):
         if p.type not in ("Real", "Integer"):
             raise ValueError(f"output {p.name}: type {p.type} (Real or Integer)")
-        add(name=p.name, causality="output", variability="continuous" if p.type == "Real" else "discrete",
+        # a sampled block's outputs change only at samples: discrete
+        add(name=p.name, causality="output",
+            variability="continuous" if p.type == "Real" and spec.block == "plant" else "discrete",
             initial="calculated", start=None, unit=p.unit if p.type == "Real" else None,
             description=p.description, type=p.type, kind="out", index=i, min=p.min, max=p.max)
+    if spec.block == "plant":
+        _plant_rows(spec, add)
+    names = [r["name"] for r in rows]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise ValueError(f"model {spec.name}: duplicate variable names {sorted(dup)}")
+    out = []
+    for vr, r in enumerate(rows):
+        if r["type"] == "Real" and r["unit"] is None:
+            r["unit"] = _q_unit(spec.q_names[r["index"]], speed=r["kind"] == "u_start")
+        if r["type"] != "Real":
+            r["unit"] = None
+        _finite(r["start"], f"start value of {r['name']}")
+        out.append(Var(vr=vr, **r))
+    return out
+
+
+def _plant_rows(spec: ModelSpec, add) -> None:
+    """What a plant has beyond parameters, inputs and outputs: start values, start.settle, the solver."""
     # start values of the coordinates: a start_params name replaces start.<q name> for its coordinate
     q_param = {i: f"start.{n}" for i, n in enumerate(spec.q_names)}
     seen: dict[int, str] = {}
@@ -146,22 +170,6 @@ def variables(spec: ModelSpec) -> list[Var]:
                                 ("rhs_evals", "right-hand side evaluations since the start"))):
         add(name=f"solver.{n}", causality="output", variability="discrete", initial="calculated", start=None,
             unit=None, description=f"embedded solver: {d}", type="Integer", kind="stat", index=j)
-
-    # units of the coordinates' start values: take the unit of an output that is the same quantity if the model
-    # does not say (the spec has no q units): rad for angles by name, m otherwise
-    names = [r["name"] for r in rows]
-    dup = {n for n in names if names.count(n) > 1}
-    if dup:
-        raise ValueError(f"model {spec.name}: duplicate variable names {sorted(dup)}")
-    out = []
-    for vr, r in enumerate(rows):
-        if r["type"] == "Real" and r["unit"] is None:
-            r["unit"] = _q_unit(spec.q_names[r["index"]], speed=r["kind"] == "u_start")
-        if r["type"] != "Real":
-            r["unit"] = None
-        _finite(r["start"], f"start value of {r['name']}")
-        out.append(Var(vr=vr, **r))
-    return out
 
 
 _ANGLE_PREFIXES = ("theta", "gamma", "pitch", "roll", "yaw", "phi", "psi", "angle", "beta", "alpha")

@@ -1,0 +1,169 @@
+"""The drive controller FMU (issue 10, spec section 12): the paper's inverse kinematics (Eqs. 9-13) and geometric
+steering (Eqs. 14-22) in the loop, as a sampled-data block beside the plant FMU.
+
+Every `ctrl.period` (default 0.01 s) it reads the commanded forward speed `cmd.v` and yaw rate `cmd.yaw_rate`
+(3D) and the plant's outputs (connected name to name: `body.*`, `bogie.theta[1..2]`, `bogie.rate[1..2]`,
+`fork.theta4`, `fork.rate4`, `steer.theta[1..2]`, `wheel[i].omega`, `wheel[i].psi_R`, `wheel[i].psi_R_rate`,
+`wheel[i].xi`) and gives `tau[1..6]` and `steer[1..2]` (3D) with the plant's input names. Two modes:
+
+    ctrl.mode = 1  inverse kinematics (the default): the wheel rates omega_ref of Eq. 13 for the commanded speed
+                   and yaw rate at the measured pose, contact angles and slips; a PI loop per wheel (ctrl.rate_kp,
+                   ctrl.rate_ki, anti-windup: no integration while clipped) turns omega_ref - omega into a torque
+                   within +-ctrl.tau_max. Eq. 13 is kinematics: wheels that skid (the four fixed bogie wheels must,
+                   in a turn) or slip make the rover slower and turn less than commanded, so an integral trim on
+                   the measured speed and yaw rate (ctrl.trim_ki; |trim| <= 1 m/s, 1 rad/s) corrects the speed
+                   and yaw rate handed to Eq. 13 until the measured ones match the commands (the steering keeps
+                   the commanded turn center);
+    ctrl.mode = 0  equal torques (the paper's run, spec section 10): one PI on the forward speed (ctrl.speed_kp,
+                   ctrl.speed_ki), the same torque on all six wheels.
+In both modes (3D) the steered wheels get the geometric steering angles (Eqs. 14-22) for (cmd.v, cmd.yaw_rate).
+
+The equations are kinematics.drive_expressions: the same CasADi graph the Python functions evaluate. The FMU
+carries only the generated sample function (no solver, no contact code): fmu_src/controller.c.
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+from .kinematics import KIN_PARAMS, drive_expressions, drive_symbols
+from .parameters import DEFAULTS, ROVER
+from .spec import ModelSpec, Quantity
+
+WHEELS = range(1, 7)
+MODES = {"equal_torques": 0, "inverse_kinematics": 1}
+CONTROLLERS = {"drive2d": "2d", "drive3d": "3d"}     # the shipped controller FMUs (build/<name>.fmu) and their dims
+
+
+def _geometry_params() -> list[Quantity]:
+    table = {q.name: q for q in ROVER}
+    return [Quantity(n, DEFAULTS[n], table[n].unit, table[n].description + " (the controller's kinematics)",
+                     table[n].min, table[n].max) for n in KIN_PARAMS]
+
+
+def params() -> list[Quantity]:
+    return [
+        Quantity("ctrl.period", 0.01, "s", "sample period of the controller", 1e-6, 1e3),
+        Quantity("ctrl.mode", 1, "1", "0 equal torques from a PI on the forward speed (the paper's run, spec "
+                 "section 10); 1 inverse kinematics (Eq. 13) with a PI loop per wheel rate", 0, 1, type="Integer"),
+        Quantity("ctrl.tau_max", 4.0, "N.m", "torque limit of every wheel", 0.0, 1e3),
+        Quantity("ctrl.speed_kp", 3.0, "N.m.s/m", "equal-torque mode: proportional gain on the speed error", 0.0),
+        Quantity("ctrl.speed_ki", 6.0, "N.m/m", "equal-torque mode: integral gain on the speed error", 0.0),
+        # a slipping wheel's own spin inertia (m_w R_w^2 / 2 = 1e-3 kg.m^2) is what the rate loop drives when the
+        # wheel skids: Kp T / J must stay well below 1 at T = 0.01 s, hence a soft Kp; loaded wheels (~0.02 kg.m^2
+        # with their share of the rover) then respond in ~0.4 s
+        Quantity("ctrl.rate_kp", 0.05, "N.m.s/rad", "inverse-kinematics mode: proportional gain on a wheel's rate "
+                 "error", 0.0),
+        Quantity("ctrl.rate_ki", 1.0, "N.m/rad", "inverse-kinematics mode: integral gain on a wheel's rate error",
+                 0.0),
+        Quantity("ctrl.trim_ki", 2.0, "1/s", "inverse-kinematics mode: integral gain of the speed and yaw-rate "
+                 "trims (0: Eq. 13 open loop)", 0.0),
+    ] + _geometry_params()
+
+
+def inputs(dims: str) -> list[Quantity]:
+    three = dims == "3d"
+    ins = [Quantity("cmd.v", 0.0, "m/s", "commanded forward speed (along the body's heading)", -5.0, 5.0)]
+    if three:
+        ins.append(Quantity("cmd.yaw_rate", 0.0, "rad/s", "commanded yaw rate (positive turns left)", -5.0, 5.0))
+    ins.append(Quantity("body.vx", 0.0, "m/s", "measured: body velocity along world X"))
+    if three:
+        ins += [Quantity("body.vy", 0.0, "m/s", "measured: body velocity along world Y"),
+                Quantity("body.yaw", 0.0, "rad", "measured: body yaw"),
+                Quantity("body.wz", 0.0, "rad/s", "measured: body yaw rate (angular velocity about world Z)")]
+    ins += [Quantity("bogie.theta[1]", 0.0, "rad", "measured: left bogie angle"),
+            Quantity("bogie.theta[2]", 0.0, "rad", "measured: right bogie angle"),
+            Quantity("fork.theta4", DEFAULTS["fork_theta4_ref"], "rad", "measured: four-bar lower link angle"),
+            Quantity("bogie.rate[1]", 0.0, "rad/s", "measured: left bogie rate"),
+            Quantity("bogie.rate[2]", 0.0, "rad/s", "measured: right bogie rate"),
+            Quantity("fork.rate4", 0.0, "rad/s", "measured: four-bar lower link rate")]
+    if three:
+        ins += [Quantity("steer.theta[1]", 0.0, "rad", "measured: steering angle of wheel 5"),
+                Quantity("steer.theta[2]", 0.0, "rad", "measured: steering angle of wheel 6")]
+    for i in WHEELS:
+        ins += [Quantity(f"wheel[{i}].omega", 0.0, "rad/s", f"measured: wheel {i} spin rate"),
+                Quantity(f"wheel[{i}].psi_R", 0.0, "rad", f"measured: wheel {i} contact angle in the rover frame"),
+                Quantity(f"wheel[{i}].psi_R_rate", 0.0, "rad/s", f"measured: wheel {i} contact angle rate"),
+                Quantity(f"wheel[{i}].xi", 0.0, "rad", f"measured: wheel {i} rotational slip angle")]
+    return ins
+
+
+def outputs(dims: str) -> list[Quantity]:
+    outs = [Quantity(f"tau[{i}]", 0.0, "N.m", f"motor torque command of wheel {i}") for i in WHEELS]
+    if dims == "3d":
+        outs += [Quantity("steer[1]", 0.0, "rad", "steering angle command of wheel 5 (Eqs. 14-22)"),
+                 Quantity("steer[2]", 0.0, "rad", "steering angle command of wheel 6 (Eqs. 14-22)")]
+    outs += [Quantity(f"ctrl.omega_ref[{i}]", 0.0, "rad/s", f"wheel {i} rate from the inverse kinematics (Eq. 13)")
+             for i in WHEELS]
+    outs.append(Quantity("ctrl.v", 0.0, "m/s", "measured forward speed the controller used"))
+    return outs
+
+
+def _pi(error, integral, kp, ki, limit, period):
+    """u = Kp e + Ki (I + e T), clipped to +-limit; I integrates only while u is within the limit (spec 10)."""
+    u = kp * error + ki * (integral + error * period)
+    return ca.fmin(ca.fmax(u, -limit), limit), ca.if_else(ca.fabs(u) <= limit, integral + error * period, integral)
+
+
+STATES = ["speed_integral"] + [f"rate_integral[{k}]" for k in WHEELS] + ["speed_trim", "yaw_trim"]
+TRIM_LIMITS = (1.0, 1.0)    # m/s, rad/s: the trims correct skid and slip, they do not take over the command
+
+
+def sample_function(dims: str) -> ca.Function:
+    """cedra_sample(inp, par, xd) -> (y, xd_next); xd as in STATES."""
+    ins, pars, outs = inputs(dims), params(), outputs(dims)
+    inp, par, xd = ca.SX.sym("inp", len(ins)), ca.SX.sym("par", len(pars)), ca.SX.sym("xd", len(STATES))
+    i = {q.name: inp[k] for k, q in enumerate(ins)}
+    p = {q.name: par[k] for k, q in enumerate(pars)}
+    three = dims == "3d"
+    T, lim = p["ctrl.period"], p["ctrl.tau_max"]
+    cmd_yaw = i["cmd.yaw_rate"] if three else 0
+    v = i["body.vx"] * ca.cos(i["body.yaw"]) + i["body.vy"] * ca.sin(i["body.yaw"]) if three else i["body.vx"]
+    trim_v = ca.fmin(ca.fmax(xd[7] + p["ctrl.trim_ki"] * (i["cmd.v"] - v) * T, -TRIM_LIMITS[0]), TRIM_LIMITS[0])
+    trim_w = ca.fmin(ca.fmax(xd[8] + p["ctrl.trim_ki"] * (cmd_yaw - i["body.wz"]) * T, -TRIM_LIMITS[1]),
+                     TRIM_LIMITS[1]) if three else 0
+    s = drive_symbols()
+    values = dict(xdot_d=i["cmd.v"] + trim_v, phidot_d=cmd_yaw + trim_w,
+                  theta=ca.vertcat(i["bogie.theta[1]"], i["bogie.theta[2]"], i["fork.theta4"]),
+                  theta_dot=ca.vertcat(i["bogie.rate[1]"], i["bogie.rate[2]"], i["fork.rate4"]),
+                  psi=ca.vertcat(*[i[f"wheel[{k}].psi_R"] for k in WHEELS]),
+                  psi_dot=ca.vertcat(*[i[f"wheel[{k}].psi_R_rate"] for k in WHEELS]),
+                  xi=ca.vertcat(*[i[f"wheel[{k}].xi"] for k in WHEELS]),
+                  steer=ca.vertcat(i["steer.theta[1]"], i["steer.theta[2]"]) if three else ca.DM.zeros(2),
+                  par=ca.vertcat(*[p[n] for n in KIN_PARAMS]))
+    e = drive_expressions(s)
+
+    def at(expr, vals):
+        return ca.substitute([expr], [s[k] for k in vals], list(vals.values()))[0]
+
+    rates = at(e["rates"], values)
+    # the steered wheels point at the turn center of the COMMANDED motion: the trims (skid and slip corrections)
+    # act through the wheel rates only, so the axles stay on the center the rover is asked to turn about
+    steer = at(e["steer"], dict(values, xdot_d=i["cmd.v"], phidot_d=cmd_yaw))
+    speed_tau, speed_int = _pi(i["cmd.v"] - v, xd[0], p["ctrl.speed_kp"], p["ctrl.speed_ki"], lim, T)
+    ik = [_pi(rates[k] - i[f"wheel[{k + 1}].omega"], xd[1 + k], p["ctrl.rate_kp"], p["ctrl.rate_ki"], lim, T)
+          for k in range(6)]
+    ik_mode = p["ctrl.mode"] >= 0.5
+    tau = [ca.if_else(ik_mode, ik[k][0], speed_tau) for k in range(6)]
+    xd_next = ca.vertcat(ca.if_else(ik_mode, xd[0], speed_int),
+                         *[ca.if_else(ik_mode, ik[k][1], xd[1 + k]) for k in range(6)],
+                         ca.if_else(ik_mode, trim_v, xd[7]), ca.if_else(ik_mode, trim_w, xd[8]))
+    y = tau + ([steer[0], steer[1]] if three else []) + [rates[k] for k in range(6)] + [v]
+    assert len(y) == len(outs)
+    return ca.Function("cedra_sample", [inp, par, xd], [ca.vertcat(*y), xd_next], ["inp", "par", "xd"],
+                       ["y", "xd_next"])
+
+
+def controller_spec(dims: str = "3d", name: str | None = None) -> ModelSpec:
+    """The drive controller for a 2D or 3D plant (3D: with steering and the yaw rate command)."""
+    if dims not in ("2d", "3d"):
+        raise ValueError(f"dims must be 2d or 3d, got {dims!r}")
+    spec = ModelSpec(
+        name=name or f"drive{dims[0]}d", block="controller",
+        description=f"CEDRA drive controller ({dims}): the paper's inverse kinematics (Eqs. 9-13) and geometric "
+        "steering (Eqs. 14-22) with a PI loop per wheel rate, or the paper's equal-torque speed loop; sampled "
+        "every ctrl.period",
+        q_names=[], z_names=[], params=params(), inputs=inputs(dims), outputs=outputs(dims), q_start=[],
+        settle_idx=[], functions={"cedra_sample": sample_function(dims)}, d_names=list(STATES), stop_time=15.0,
+        output_interval=0.01)
+    spec.check()
+    return spec
