@@ -75,7 +75,7 @@ def _fail(path, key, reason):
     raise SceneError(f"{path}: key '{key}': {reason}")
 
 
-def _number(path, key, value, lo=None, hi=None, positive=False):
+def _number(path, key, value, lo=None, hi=None, positive=False, lo_exclusive=False):
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         _fail(path, key, f"expected a number, got {value!r}")
     value = float(value)
@@ -83,6 +83,8 @@ def _number(path, key, value, lo=None, hi=None, positive=False):
         _fail(path, key, f"must be finite, got {value}")
     if positive and value <= 0:
         _fail(path, key, f"must be > 0, got {value}")
+    if lo is not None and lo_exclusive and value <= lo:
+        _fail(path, key, f"must be > {lo}, got {value}")
     if lo is not None and value < lo:
         _fail(path, key, f"must be >= {lo}, got {value}")
     if hi is not None and value > hi:
@@ -179,7 +181,7 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
                 _fail(path, f"{section}.{key}", f"not {what} of this scene "
                       f"(dims={dims}, terrain={terrain}, steering={steering})")
             q = known[key]
-            values[key] = _number(path, f"{section}.{key}", value, q.min, q.max)
+            values[key] = _number(path, f"{section}.{key}", value, q.min, q.max, lo_exclusive=q.min_exclusive)
         setattr(scene, section, values)
     names, _ = projection(opt)
     for key, value in _table(path, data, "start").items():
