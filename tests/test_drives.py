@@ -1,0 +1,165 @@
+"""Drives (spec section 11): each wheel's torque command clipped to a DC motor's torque-speed envelope at the
+wheel, minus the gear's viscous loss. The law itself against numpy at points inside, on and outside the
+envelope; drives off leaves the model as it was; the scene option is validated like the other keys."""
+import numpy as np
+import pytest
+
+from cedra import scene as sc
+from cedra.model import CedraModel, ModelOptions
+from cedra.rover import IDX
+
+DRIVE_PARAMS = ("drive_stall_torque", "drive_noload_speed", "drive_viscous")
+
+
+def applied_torque(cmd, omega, stall, noload, viscous):
+    """Spec section 11 in numpy: the reference the model is checked against."""
+    return np.clip(cmd, -stall * (1 + omega / noload), stall * (1 - omega / noload)) - viscous * omega
+
+
+class Functions:
+    """A model's numeric contract functions with named access to outputs."""
+
+    def __init__(self, opt):
+        self.m = CedraModel(opt)
+        self.fns = self.m.functions()
+        self.out_names = [o.name for o in self.m.spec("test").outputs]
+
+    def f(self, q, u, inp, par):
+        f, g = self.fns["cedra_f"](q, u, inp, par)
+        return np.array(f).ravel(), float(g)
+
+    def out(self, q, u, inp, par):
+        y = np.array(self.fns["cedra_out"](q, u, 0, inp, par)).ravel()
+        return dict(zip(self.out_names, y))
+
+    def spin_rates(self, u):
+        """The six wheels' spin rates relative to their carriers for scene speeds u (2D: 1 = 3, 2 = 4)."""
+        uf = self.m.P @ u
+        return np.array([uf[IDX[f"gamma{i}"]] for i in range(1, 7)])
+
+
+OPTIONS = {"2d": dict(dims="2d", terrain="bump"), "3d": dict(dims="3d", terrain="flat", steering=True)}
+
+
+@pytest.fixture(scope="module", params=list(OPTIONS))
+def pair(request):
+    """(drives on, drives off) for the same scene options."""
+    opt = OPTIONS[request.param]
+    return Functions(ModelOptions(**opt, drives=True)), Functions(ModelOptions(**opt))
+
+
+def random_point(fn, rng):
+    """A state near the ground (some wheels in contact) with spin rates up to 3 no-load speeds."""
+    names = fn.m.q_names
+    q = np.zeros(len(names))
+    q[names.index("z")] = 0.197
+    q[names.index("theta4")] = fn.m.default_par()[[p.name for p in fn.m.params].index("fork_theta4_ref")]
+    u = rng.uniform(-0.5, 0.5, len(names))
+    for k, nm in enumerate(names):
+        if nm.startswith("gamma"):
+            u[k] = rng.uniform(-30, 30)
+    return q, u
+
+
+def commands(rng, omega, stall, noload):
+    """One command per wheel: inside the envelope, exactly on its upper or lower edge, or beyond it."""
+    upper, lower = stall * (1 - omega / noload), -stall * (1 + omega / noload)
+    where = rng.integers(0, 4, 6)
+    inside = rng.uniform(lower, upper)
+    beyond = np.where(rng.random(6) < 0.5, upper + rng.uniform(0, 3 * stall, 6), lower - rng.uniform(0, 3 * stall, 6))
+    return np.choose(where, [inside, upper, lower, beyond]), where
+
+
+def test_applied_torque_is_the_envelope_law(pair):
+    on, off = pair
+    rng = np.random.default_rng(11)
+    names = [p.name for p in on.m.params]
+    seen = set()
+    for _ in range(40):
+        q, u = random_point(on, rng)
+        stall, noload, viscous = rng.uniform(1, 10), rng.uniform(2, 20), rng.uniform(0, 0.1)
+        par = on.m.default_par(drive_stall_torque=stall, drive_noload_speed=noload, drive_viscous=viscous)
+        omega = on.spin_rates(u)
+        cmd, where = commands(rng, omega, stall, noload)
+        seen |= set(where)
+        inp = on.m.default_inp(**{f"tau[{i}]": cmd[i - 1] for i in range(1, 7)})
+        expected = applied_torque(cmd, omega, stall, noload, viscous)
+        y = on.out(q, u, inp, par)
+        got = np.array([y[f"wheel[{i}].tau"] for i in range(1, 7)])
+        assert np.max(np.abs(got - expected)) <= 1e-12 * max(1.0, np.max(np.abs(expected))), (got, expected)
+        # the equations are the plain model's driven by the applied torques (each wheel's own torque on its own
+        # spin coordinate; in 2D the pair 1, 3 and the pair 2, 4 add on their shared coordinate) ...
+        plain_par = np.array([par[names.index(p.name)] for p in off.m.params])
+        plain_inp = off.m.default_inp(**{f"tau[{i}]": expected[i - 1] for i in range(1, 7)})
+        f_on, work_rate = on.f(q, u, inp, par)
+        f_off, _ = off.f(q, u, plain_inp, plain_par)
+        assert np.max(np.abs(f_on - f_off)) <= 1e-12 * np.max(np.abs(f_off)), f_on - f_off
+        # ... and the work integral's rate is the applied torques' power, gear loss included
+        assert abs(work_rate - expected @ omega) <= 1e-12 * max(1.0, np.abs(expected * omega).sum())
+    assert seen == {0, 1, 2, 3}          # inside, on the upper edge, on the lower edge, beyond
+
+
+def test_drives_off_is_the_plain_model():
+    bump2d = sc.load_shipped("bump2d")
+    assert bump2d.options.drives is False and ModelOptions().drives is False
+    plain = Functions(bump2d.options)
+    assert not {p.name for p in plain.m.params} & set(DRIVE_PARAMS)
+    assert not [n for n in plain.out_names if n.endswith(".tau")]
+    assert plain.m.spec("t").outputs[-1].description == "work done by the motor torques since the start"
+    # drives whose envelope never binds (huge stall torque and no-load speed, no gear loss) give exactly the plain
+    # model: so the plain model applies tau[i] as it is, while default drives do change it at the same points
+    drives = Functions(ModelOptions(dims="2d", terrain="bump", drives=True))
+    unbound = drives.m.default_par(drive_stall_torque=1e9, drive_noload_speed=1e9, drive_viscous=0.0)
+    rng = np.random.default_rng(5)
+    changed = 0
+    for _ in range(20):
+        q, u = random_point(plain, rng)
+        tau = {f"tau[{i}]": rng.uniform(-20, 20) for i in range(1, 7)}
+        f_plain, g_plain = plain.f(q, u, plain.m.default_inp(**tau), plain.m.default_par())
+        f_unbound, g_unbound = drives.f(q, u, drives.m.default_inp(**tau), unbound)
+        assert np.max(np.abs(f_plain - f_unbound)) <= 1e-12 * np.max(np.abs(f_plain))
+        assert abs(g_plain - g_unbound) <= 1e-12 * max(1.0, abs(g_plain))
+        f_default, _ = drives.f(q, u, drives.m.default_inp(**tau), drives.m.default_par())
+        changed += np.max(np.abs(f_default - f_plain)) > 1e-3 * np.max(np.abs(f_plain))
+    assert changed == 20
+
+
+# ---------------------------------------------------------------- scene option
+SCENE = """\
+name = "t2d"
+dims = "2d"
+terrain = "flat"
+"""
+
+
+@pytest.mark.parametrize("text, key, reason", [
+    ('drives = "yes"\n', "drives", "expected true or false"),
+    ("drives = 1\n", "drives", "expected true or false"),
+    ("drives = true\nlocked_wheels = true\n", "drives", "locked wheels have no motors"),
+    ("drives = true\n[parameters]\ndrive_stall_torque = 0.0\n", "parameters.drive_stall_torque", "must be > 0.0"),
+    ("drives = true\n[parameters]\ndrive_noload_speed = -10.0\n", "parameters.drive_noload_speed",
+     "must be > 0.0"),
+    ("drives = true\n[parameters]\ndrive_viscous = -0.01\n", "parameters.drive_viscous", "must be >= 0.0"),
+    ("[parameters]\ndrive_viscous = 0.01\n", "parameters.drive_viscous", "not a parameter of this scene"),
+])
+def test_bad_drives_scene(tmp_path, text, key, reason):
+    path = tmp_path / "drives.toml"
+    path.write_text(SCENE + text)
+    with pytest.raises(sc.SceneError) as e:
+        sc.load(path)
+    msg = str(e.value)
+    assert str(path) in msg and f"'{key}'" in msg and reason in msg, msg
+
+
+def test_drives_scene_options_reach_the_spec(tmp_path):
+    path = tmp_path / "drives.toml"
+    path.write_text(SCENE + "drives = true\n[parameters]\ndrive_stall_torque = 3.5\ndrive_viscous = 0.0\n")
+    spec = sc.load(path).spec()
+    spec.check()
+    par = {p.name: p for p in spec.params}
+    assert par["drive_stall_torque"].start == 3.5 and par["drive_viscous"].start == 0.0
+    assert par["drive_noload_speed"].start == 10.0
+    assert [(par[n].unit, par[n].min, par[n].min_exclusive) for n in DRIVE_PARAMS] == [
+        ("N.m", 0.0, True), ("rad/s", 0.0, True), ("N.m.s/rad", 0.0, False)]
+    assert [o.name for o in spec.outputs if o.name.endswith(".tau")] == [f"wheel[{i}].tau" for i in range(1, 7)]
+    assert "applied torques" in spec.outputs[-1].description
