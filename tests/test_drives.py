@@ -1,12 +1,22 @@
 """Drives (spec section 11): each wheel's torque command clipped to a DC motor's torque-speed envelope at the
 wheel, minus the gear's viscous loss. The law itself against numpy at points inside, on and outside the
-envelope; drives off leaves the model as it was; the scene option is validated like the other keys."""
+envelope; drives off leaves the model as it was; the scene option is validated like the other keys; through the
+shipped bump2d_drives FMU: the energy balance with the applied torques' work, and a lifted rover whose wheels
+cannot spin past the no-load speed (without drives they run away).
+
+Uses build/<scene>.fmu when `./build.sh` has built it (CI does), else builds into pytest's tmp dir."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from cedra import scene as sc
+from cedra.driver import RoverFMU
+from cedra.fmu import build_fmu
 from cedra.model import CedraModel, ModelOptions
 from cedra.rover import IDX
+
+REPO = Path(__file__).resolve().parents[1]
 
 DRIVE_PARAMS = ("drive_stall_torque", "drive_noload_speed", "drive_viscous")
 
@@ -163,3 +173,112 @@ def test_drives_scene_options_reach_the_spec(tmp_path):
         ("N.m", 0.0, True), ("rad/s", 0.0, True), ("N.m.s/rad", 0.0, False)]
     assert [o.name for o in spec.outputs if o.name.endswith(".tau")] == [f"wheel[{i}].tau" for i in range(1, 7)]
     assert "applied torques" in spec.outputs[-1].description
+
+
+# ---------------------------------------------------------------- the FMU
+@pytest.fixture(scope="module")
+def fmu_paths(tmp_path_factory):
+    paths = {}
+    for name in ("bump2d", "bump2d_drives"):
+        built = REPO / "build" / f"{name}.fmu"
+        paths[name] = built if built.exists() else build_fmu(sc.load_shipped(name).spec(),
+                                                             tmp_path_factory.mktemp(name))
+    return paths
+
+
+WHEELS = range(1, 7)
+OMEGA = [f"wheel[{i}].omega" for i in WHEELS]
+TAU = [f"wheel[{i}].tau" for i in WHEELS]
+
+
+def test_fmu_variables(fmu_paths):
+    plain = RoverFMU(fmu_paths["bump2d"])
+    assert not [n for n in plain.vars if n.startswith("drive_") or n.endswith(".tau")]
+    plain.close()
+    f = RoverFMU(fmu_paths["bump2d_drives"])
+    v = f.vars
+    assert [(v[n].causality, v[n].unit, v[n].start) for n in DRIVE_PARAMS] == [
+        ("parameter", "N.m", "6.0"), ("parameter", "rad/s", "10.0"), ("parameter", "N.m.s/rad", "0.01")]
+    assert all(v[n].causality == "output" and v[n].unit == "N.m" for n in TAU)
+    # the glue refuses a zero no-load speed (the envelope divides by it) and a negative gear loss, by name
+    from fmpy.fmi1 import FMICallException
+    f.fmu.instantiate(callbacks=f._callbacks)
+    f.fmu.setupExperiment(startTime=0.0)
+    f.fmu.enterInitializationMode()
+    for name, bad in (("drive_noload_speed", 0.0), ("drive_stall_torque", 0.0), ("drive_viscous", -1e-3)):
+        with pytest.raises(FMICallException):
+            f.fmu.setReal([v[name].valueReference], [bad])
+        assert name in f.messages[-1], f.messages[-1]
+    f.fmu.exitInitializationMode()
+    f.close()
+
+
+def fmu_law_error(f, y, commands):
+    """Largest difference between the FMU's wheel[i].tau and the numpy law at its own outputs wheel[i].omega."""
+    par = f.get(list(DRIVE_PARAMS))
+    omega, tau = y[:6], y[6:12]
+    return np.max(np.abs(tau - applied_torque(np.asarray(commands), omega, *par)))
+
+
+def test_energy_balance_with_drives(fmu_paths):
+    """K + P - W is constant when nothing but the drives dissipates (no ground, joint or stop damping, mu = 0:
+    the torques only spin the wheels and rock the rover on its springs by their reactions): the work integral is
+    the applied torques' (envelope and gear loss included), at the solver's tolerance. Commands of +-8 N.m
+    sweep every wheel across both edges of its envelope."""
+    f = RoverFMU(fmu_paths["bump2d_drives"])
+    f.start({"ground_d": 0.0, "fork_d": 0.0, "stop_d": 0.0, "mu": 0.0, "solver.tol": 1e-8})
+    names = OMEGA + TAU + ["energy.kinetic", "energy.potential", "energy.work"]
+    balance, work, law_error = [], [], 0.0
+    held = [0.0] * 6                   # the commands of the last step (the outputs are the step end's)
+    for k in range(201):
+        y = f.get(names)
+        law_error = max(law_error, fmu_law_error(f, y, held))
+        kinetic, potential, w = y[12:]
+        balance.append(kinetic + potential - w)
+        work.append(w)
+        if k == 200:
+            break
+        held = [8.0 * np.sin(2 * np.pi * (0.5 + 0.3 * i) * 0.01 * k) for i in WHEELS]
+        f.set({f"tau[{i}]": c for i, c in zip(WHEELS, held)})
+        assert f.step(0.01 * (k + 1)), f.messages
+    f.close()
+    moved = np.sum(np.abs(np.diff(work)))          # energy that went through the drives, in and out
+    drift = np.max(np.abs(np.array(balance) - balance[0]))
+    print(f"energy through the drives {moved:.4f} J, balance drift {drift:.2e} J")
+    assert moved > 1.0
+    assert drift < 1e-6 * moved                    # measured 1.8e-8 J of 2.85 J at solver.tol 1e-8
+    assert law_error < 1e-12
+
+
+def spin_lifted(path, commands, stop):
+    """The rover in free space (g = 0, body at 1 m, no settle) with constant commands; the sampled spin rates
+    relative to the carriers and the largest deviation of wheel[i].tau from the law (nan without drives)."""
+    f = RoverFMU(path)
+    f.start({"g": 0.0, "start.settle": False, "start.z": 1.0})
+    f.set({f"tau[{i}]": c for i, c in zip(WHEELS, commands)})
+    drives = f.has(TAU[0])
+    spins, law_error = [], 0.0 if drives else np.nan
+    for k in range(1, int(round(stop / 0.01)) + 1):
+        assert f.step(0.01 * k), f.messages
+        y = f.get(OMEGA + (TAU if drives else []))
+        spins.append(y[:6])
+        if drives:
+            law_error = max(law_error, fmu_law_error(f, y, commands))
+    f.close()
+    return np.array(spins), law_error
+
+
+def test_lifted_wheels_cannot_outrun_the_motor(fmu_paths):
+    # any positive command, each 2D pair (1, 3) and (2, 4) with different commands on its shared spin
+    commands = [4.0, 6.0, 1000.0, 0.5, 50.0, 0.2]
+    spins, law_error = spin_lifted(fmu_paths["bump2d_drives"], commands, 2.0)
+    print("peak spin with drives", np.max(np.abs(spins), axis=0))
+    assert np.max(np.abs(spins)) <= 10.0           # drive_noload_speed
+    # free-running: the upper edge minus the gear loss is 0 at w = T_s / (T_s / w_0 + b) = 9.836 rad/s
+    assert np.allclose(spins[-1], 6.0 / (0.6 + 0.01), rtol=1e-3), spins[-1]
+    assert law_error < 1e-12
+    # without drives the controller's largest torque spins them far beyond within a quarter second (longer, the
+    # reaction tips the floating body over, which stops the FMU)
+    plain, _ = spin_lifted(fmu_paths["bump2d"], [4.0] * 6, 0.25)
+    print("peak spin without drives", np.max(np.abs(plain), axis=0))
+    assert np.min(np.max(np.abs(plain), axis=0)) > 50 * 10.0
