@@ -5,6 +5,7 @@ shipped bump2d_drives FMU: the energy balance with the applied torques' work, an
 cannot spin past the no-load speed (without drives they run away).
 
 Uses build/<scene>.fmu when `./build.sh` has built it (CI does), else builds into pytest's tmp dir."""
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,8 @@ from cedra.model import CedraModel, ModelOptions
 from cedra.rover import IDX
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "examples"))
+import drives_paper  # noqa: E402
 
 DRIVE_PARAMS = ("drive_stall_torque", "drive_noload_speed", "drive_viscous")
 
@@ -282,3 +285,23 @@ def test_lifted_wheels_cannot_outrun_the_motor(fmu_paths):
     plain, _ = spin_lifted(fmu_paths["bump2d"], [4.0] * 6, 0.25)
     print("peak spin without drives", np.max(np.abs(plain), axis=0))
     assert np.min(np.max(np.abs(plain), axis=0)) > 50 * 10.0
+
+
+def test_drives_paper_example(tmp_path):
+    """The example's two bump runs up to 5 s: the rover has reached the bump and stalls at it for a while, its
+    bogie wheels off the ground; plain torques spin them to ~830 rad/s there, the drives hold every wheel under
+    the no-load speed (later, rolling down the bump faster than 0.65 m/s, the ground spins the wheels past it
+    while the drives brake: the README's full-run figures)."""
+    built = REPO / "build"          # else the example builds both FMUs into tmp_path itself
+    both_built = all((built / f"{s}.fmu").exists() for s in drives_paper.SCENES)
+    figures = drives_paper.compare(build_dir=built if both_built else tmp_path, out_dir=tmp_path / "out",
+                                   stop_time=5.0)
+    for name in ("bump2d.csv", "bump2d_drives.csv", "spin_and_load.png"):
+        assert (tmp_path / "out" / name).stat().st_size > 1000, name
+    plain, drives = figures["bump2d"], figures["bump2d_drives"]
+    assert drives["peak spin [rad/s]"] <= 10.0 + 1e-9
+    assert drives["peak spin airborne [rad/s]"] > 9.0             # the bogie wheels did spin in the air
+    assert plain["peak spin airborne [rad/s]"] > 50 * 10.0
+    assert drives["slip work [J]"] < plain["slip work [J]"] / 10
+    for f in (plain, drives):                        # the sampled slip work fits in the exact dissipation
+        assert 0 < f["slip work [J]"] < f["dissipated W - d(K+P) [J]"]
