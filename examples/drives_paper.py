@@ -50,7 +50,15 @@ def slip_work(c) -> float:
     return float(total)
 
 
-def summary(c) -> dict[str, float]:
+def gear_loss(c, viscous) -> float:
+    """Work lost in the gears, the integral of b omega^2 over the wheels, sampled like slip_work (0 without
+    drives). The motors themselves gave W plus this."""
+    if "wheel[1].tau" not in c:
+        return 0.0
+    return float(sum(np.trapezoid(viscous * c[f"wheel[{i}].omega"] ** 2, c["time"]) for i in WHEELS))
+
+
+def summary(c, viscous) -> dict[str, float]:
     spin = np.abs(np.array([c[f"wheel[{i}].omega"] for i in WHEELS]))
     load = np.array([c[f"wheel[{i}].Fn"] for i in WHEELS])
     mechanical = c["energy.kinetic"] + c["energy.potential"]
@@ -59,9 +67,10 @@ def summary(c) -> dict[str, float]:
         "peak spin airborne [rad/s]": float(spin[load == 0].max(initial=0.0)),
         "slip work [J]": slip_work(c),
         # exact (the FMU's work integral): everything the ground and the joints dissipated; the gear's loss is
-        # not in it, the work integral is of the applied torques
+        # not in it, the work integral W is of the applied torques (after the gear)
         "dissipated W - d(K+P) [J]": float(c["energy.work"][-1] - (mechanical[-1] - mechanical[0])),
         "motor work W [J]": float(c["energy.work"][-1]),
+        "gear loss [J]": gear_loss(c, viscous),
         "peak Fn [N]": float(load.max()),
         "body.x end [m]": float(c["body.x"][-1]),
     }
@@ -109,7 +118,7 @@ def compare(build_dir="build", out_dir="out/drives_paper", stop_time=None) -> di
     for scene, c in runs.items():
         write_csv(out / f"{scene}.csv", c)
     plot(out / "spin_and_load.png", runs, DEFAULTS["drive_noload_speed"])
-    figures = {scene: summary(c) for scene, c in runs.items()}
+    figures = {scene: summary(c, DEFAULTS["drive_viscous"]) for scene, c in runs.items()}
     width = max(map(len, next(iter(figures.values()))))
     print(f"{'':{width}}  " + "  ".join(f"{s:>14}" for s in SCENES))
     for key in figures[SCENES[0]]:

@@ -303,5 +303,6 @@ def test_drives_paper_example(tmp_path):
     assert drives["peak spin airborne [rad/s]"] > 9.0             # the bogie wheels did spin in the air
     assert plain["peak spin airborne [rad/s]"] > 50 * 10.0
     assert drives["slip work [J]"] < plain["slip work [J]"] / 10
+    assert plain["gear loss [J]"] == 0 < drives["gear loss [J]"]
     for f in (plain, drives):                        # the sampled slip work fits in the exact dissipation
         assert 0 < f["slip work [J]"] < f["dissipated W - d(K+P) [J]"]
