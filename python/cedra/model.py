@@ -17,7 +17,7 @@ import numpy as np
 from . import parameters
 from .contact import compliant_force, contact_geometry
 from .kane import KaneSystem
-from .rover import FULL_Q, IDX, describe
+from .rover import FULL_Q, IDX, describe, drive_torque
 from .spec import ModelSpec, Quantity
 from .terrain import KINDS, TERRAIN_INPUTS, Terrain
 
@@ -36,6 +36,7 @@ class ModelOptions:
     contact: str = "compliant"
     locked_wheels: bool = False   # wheels welded to their carriers (a parking brake): no spin coordinates
     heightmap: str = ""           # terrain "heightmap": the grid file (shipped as the FMU's resources/heightmap.txt)
+    drives: bool = False          # motor-and-gear model between tau[i] and the wheel (spec section 11)
 
 
 def coordinate_map(opt: ModelOptions) -> dict[str, str | None]:
@@ -66,6 +67,8 @@ def param_table(opt: ModelOptions) -> list[Quantity]:
     ps = parameters.ROVER + (parameters.RIGID if opt.contact == "rigid" else parameters.GROUND)
     if opt.steering:
         ps = ps + parameters.SERVO
+    if opt.drives:
+        ps = ps + parameters.DRIVES
     return ps
 
 
@@ -91,6 +94,8 @@ class CedraModel:
     def __init__(self, opt: ModelOptions):
         if opt.contact not in ("compliant", "rigid"):
             raise ValueError(f"unknown contact model {opt.contact!r} (compliant or rigid)")
+        if opt.drives and opt.locked_wheels:
+            raise ValueError("drives need spinning wheels (locked_wheels is set)")
         self.rigid = opt.contact == "rigid"
         self.opt = opt
         self.q_names, self.P = projection(opt)
@@ -105,9 +110,9 @@ class CedraModel:
         i_ = {q.name: self.inp[i] for i, q in enumerate(self.inputs)}
         self.p, self.i = p, i_
         self.qf = ca.SX(ca.DM(self.P)) @ self.q
-        tau = [i_.get(f"tau[{k}]", 0) for k in range(1, 7)]
+        self.tau = self.applied_torques([i_.get(f"tau[{k}]", 0) for k in range(1, 7)])
         steer = (i_["steer[1]"], i_["steer[2]"]) if opt.steering else None
-        self.rover = describe(self.qf, self.rate, p, tau, steer)
+        self.rover = describe(self.qf, self.rate, p, self.tau, steer)
         self.terrain = Terrain(opt.terrain, {n: i_[n] for n in KINDS[opt.terrain].inputs}, opt.heightmap)
         self.kane = KaneSystem(self.q, self.u, list(self.rover.bodies))
         self.kane.add_generalized_force(ca.jacobian(self.rate(self.qf), self.u).T @ self.rover.coordinate_torques)
@@ -134,7 +139,9 @@ class CedraModel:
                                       v_point=v_point, vc=vc))
         self.M, self.f = self.kane.equations()
         qd = self.rate(self.qf)
-        self.power = sum(tau[k] * qd[IDX[f"gamma{k + 1}"]] for k in range(6))
+        # the work integral is the APPLIED torques' (with drives: after the clip and the gear loss), so
+        # K + P - work stays constant up to the contact's and the joints' dissipation
+        self.power = sum(self.tau[k] * qd[IDX[f"gamma{k + 1}"]] for k in range(6))
         self.kinetic = 0.5 * ca.dot(self.u, self.M @ self.u)
         self.potential = self.rover.potential
         if not self.rigid:
@@ -143,6 +150,17 @@ class CedraModel:
 
     def rate(self, expr):
         return ca.jtimes(expr, self.q, self.u)
+
+    def applied_torques(self, tau_cmd):
+        """The torques on the six wheels: the commands themselves, or (drives) each command through its wheel's
+        motor envelope at that wheel's own spin rate relative to its carrier. In 2D wheels 1, 3 (and 2, 4) share
+        one spin coordinate, so they share omega, but each keeps its own command."""
+        if not self.opt.drives:
+            return tau_cmd
+        omega = self.rate(self.qf)
+        p = self.p
+        return [drive_torque(tau_cmd[k], omega[IDX[f"gamma{k + 1}"]], p["drive_stall_torque"],
+                             p["drive_noload_speed"], p["drive_viscous"]) for k in range(6)]
 
     # ---------------- the contract's functions ----------------
     @cached_property
@@ -179,6 +197,12 @@ class CedraModel:
             geo = c["geo"]
             o += [
                 (_out(f"wheel[{k}].omega", "rad/s", f"wheel {k} spin rate"), qd[IDX[f"gamma{k}"]]),
+            ]
+            if self.opt.drives:     # without drives it would only repeat the input tau[k]
+                o.append((_out(f"wheel[{k}].tau", "N.m", f"wheel {k} torque applied by its drive (tau[{k}] "
+                                                         "clipped to the motor envelope, minus the gear loss)"),
+                          self.tau[k - 1]))
+            o += [
                 (_out(f"wheel[{k}].Fn", "N", f"wheel {k} normal contact force"), c["Fn"]),
                 (_out(f"wheel[{k}].Fx", "N", f"wheel {k} longitudinal contact force (contact frame x)"), c["Fx"]),
                 (_out(f"wheel[{k}].Fy", "N", f"wheel {k} lateral contact force (contact frame y)"), c["Fy"]),
@@ -255,6 +279,13 @@ class CedraModel:
             "cedra_check": ca.Function("cedra_check", [q, u, inp, par], [self.check()]),
         }
 
+    def work_description(self):
+        if not self.opt.drives:
+            return "work done by the motor torques since the start"
+        return ("work done by the motor torques since the start: of the applied torques wheel[i].tau (after the "
+                "envelope, so the gear's viscous loss is in it), times the wheels' spin rates relative to their "
+                "carriers")
+
     def check(self):
         """cedra_check's code (spec.CHECK_REASONS): 1 inside the domain, -1 four-bar toggle, -2 tipped over.
         Beyond 80 deg of pitch or roll the body would be lying on the ground, which the model does not know (and
@@ -292,7 +323,7 @@ class CedraModel:
             _out("energy.kinetic", "J", "kinetic energy"),
             _out("energy.potential", "J",
                  "potential energy: gravity (datum Z = 0), fork spring, stops, servo springs, ground springs"),
-            _out("energy.work", "J", "work done by the motor torques since the start")]
+            _out("energy.work", "J", self.work_description())]
         q_start = [0.0] * len(self.q_names)
         q_start[self.q_names.index("z")] = parameters.DEFAULTS["R_w"] - parameters.DEFAULTS["rear_z"]
         q_start[self.q_names.index("theta4")] = parameters.DEFAULTS["fork_theta4_ref"]

@@ -60,4 +60,17 @@ SERVO = [
     Q("steer_d", 0.3, "N.m.s/rad", "steering servo damping", min=0.0),
 ]
 
-DEFAULTS = {p.name: p.start for p in ROVER + GROUND + RIGID + SERVO}
+# Drives (spec section 11, scene option `drives`): a DC motor behind its gear, seen at the wheel. Its linear
+# torque-speed envelope passes through the stall torque at rest and 0 at the no-load speed (0.65 m/s at the rim);
+# the gear adds a viscous loss. Both envelope numbers must be > 0 (the envelope divides by the no-load speed, and a
+# zero stall torque is no motor).
+DRIVES = [
+    Q("drive_stall_torque", 6.0, "N.m", "drive stall torque at the wheel (T_s): the most torque the motor and gear "
+      "give at rest", min=0.0, min_exclusive=True),
+    Q("drive_noload_speed", 10.0, "rad/s", "drive no-load speed at the wheel (w_0): the spin rate relative to the "
+      "carrier where the forward torque envelope reaches 0", min=0.0, min_exclusive=True),
+    Q("drive_viscous", 0.01, "N.m.s/rad", "viscous loss of the gear at the wheel (b): -b omega is added to the "
+      "clipped command", min=0.0),
+]
+
+DEFAULTS = {p.name: p.start for p in ROVER + GROUND + RIGID + SERVO + DRIVES}

@@ -66,10 +66,21 @@ def stop_energy(angle, lo, hi, k):
     return 0.5 * k * (ca.fmax(0, angle - hi) ** 2 + ca.fmax(0, lo - angle) ** 2)
 
 
+def drive_torque(tau_cmd, omega, stall, noload, viscous):
+    """The torque a drive applies to its wheel (spec section 11): the command clipped to the DC motor's linear
+    torque-speed envelope, seen at the wheel, minus the gear's viscous loss. omega is the wheel's spin rate relative
+    to its carrier. Above the no-load speed the envelope's upper edge is negative, so no command can drive the wheel
+    faster; the lower edge mirrors it for reverse."""
+    upper = stall * (1 - omega / noload)
+    lower = -stall * (1 + omega / noload)
+    return ca.fmin(ca.fmax(tau_cmd, lower), upper) - viscous * omega
+
+
 def describe(qf, rate, p, tau, steer_cmd):
     """The rover for full coordinates qf (17 expressions of a scene's coordinates); rate(expr) is the time
     derivative of an expression; p: parameter symbols by name;
-    tau: six motor torques; steer_cmd: (theta3, theta6) commands or None when the scene has no steering."""
+    tau: six torques applied to the wheels (the inputs, or the drives' output);
+    steer_cmd: (theta3, theta6) commands or None when the scene has no steering."""
     x, y, z, yaw, pitch, roll = (qf[IDX[n]] for n in ("x", "y", "z", "yaw", "pitch", "roll"))
     th1, th2, th4, th3, th6 = (qf[IDX[n]] for n in ("theta1", "theta2", "theta4", "theta3", "theta6"))
     qdf = rate(qf)

@@ -10,6 +10,7 @@ before any code is generated.
     contact = "compliant"           # compliant (rigid: not built yet)
     steering = false                # 3d only: steering servo on wheels 5 and 6
     locked_wheels = false           # wheels welded to their carriers (a parking brake; no torque inputs)
+    drives = false                  # motor-and-gear model between tau[i] and the wheel (spec section 11)
     stop_time = 15.0                # s, the FMU's DefaultExperiment
     output_interval = 0.01          # s, the DefaultExperiment's step size
     [solver]                        # defaults of the FMU's solver.* parameters
@@ -39,7 +40,7 @@ from .terrain import KINDS
 
 SOLVERS = {"rk4": 0, "dopri5": 1, "rodas4": 2}
 TOP_KEYS = {"name", "description", "dims", "terrain", "heightmap", "contact", "steering", "locked_wheels",
-            "stop_time", "output_interval",
+            "drives", "stop_time", "output_interval",
             "solver", "parameters", "inputs", "start"}
 
 
@@ -78,7 +79,7 @@ def _fail(path, key, reason):
     raise SceneError(f"{path}: key '{key}': {reason}")
 
 
-def _number(path, key, value, lo=None, hi=None, positive=False):
+def _number(path, key, value, lo=None, hi=None, positive=False, lo_exclusive=False):
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         _fail(path, key, f"expected a number, got {value!r}")
     value = float(value)
@@ -86,6 +87,8 @@ def _number(path, key, value, lo=None, hi=None, positive=False):
         _fail(path, key, f"must be finite, got {value}")
     if positive and value <= 0:
         _fail(path, key, f"must be > 0, got {value}")
+    if lo is not None and lo_exclusive and value <= lo:
+        _fail(path, key, f"must be > {lo}, got {value}")
     if lo is not None and value < lo:
         _fail(path, key, f"must be >= {lo}, got {value}")
     if hi is not None and value > hi:
@@ -151,6 +154,11 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     locked = data.get("locked_wheels", False)
     if not isinstance(locked, bool):
         _fail(path, "locked_wheels", f"expected true or false, got {locked!r}")
+    drives = data.get("drives", False)
+    if not isinstance(drives, bool):
+        _fail(path, "drives", f"expected true or false, got {drives!r}")
+    if drives and locked:
+        _fail(path, "drives", "locked wheels have no motors (locked_wheels = true)")
     stop_time = _number(path, "stop_time", data.get("stop_time", 10.0), positive=True)
     interval = _number(path, "output_interval", data.get("output_interval", 0.01), positive=True)
     if interval > stop_time:
@@ -179,7 +187,7 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
             _fail(path, k, "unknown key (known: method, tol, h_max, max_steps, max_wall_time)")
 
     opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked,
-                       heightmap=heightmap_file)
+                       heightmap=heightmap_file, drives=drives)
     scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path))
     for section, table in (("parameters", param_table(opt)), ("inputs", input_table(opt))):
         known = {q.name: q for q in table}
@@ -188,9 +196,9 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
             if key not in known:
                 what = "an input" if section == "inputs" else "a parameter"
                 _fail(path, f"{section}.{key}", f"not {what} of this scene "
-                      f"(dims={dims}, terrain={terrain}, steering={steering})")
+                      f"(dims={dims}, terrain={terrain}, steering={steering}, drives={drives})")
             q = known[key]
-            values[key] = _number(path, f"{section}.{key}", value, q.min, q.max)
+            values[key] = _number(path, f"{section}.{key}", value, q.min, q.max, lo_exclusive=q.min_exclusive)
         setattr(scene, section, values)
     names, _ = projection(opt)
     for key, value in _table(path, data, "start").items():

@@ -71,6 +71,7 @@ class Quantity:
     min: float | None = None
     max: float | None = None
     type: str = "Real"          # "Real" or "Integer" (Integer outputs are computed as reals and rounded)
+    min_exclusive: bool = False  # value == min is refused too (XML can only say min; the glue and scenes refuse it)
 
 
 @dataclass

@@ -93,10 +93,11 @@ def variables(spec: ModelSpec) -> list[Var]:
             raise ValueError(f"parameter {p.name}: type {p.type} (Real or Integer)")
         add(name=p.name, causality="parameter", variability="fixed", initial="exact",
             start=float(p.start) if p.type == "Real" else int(p.start), unit=p.unit, description=p.description,
-            type=p.type, kind="par", index=i, min=p.min, max=p.max)
+            type=p.type, kind="par", index=i, min=p.min, max=p.max, min_exclusive=p.min_exclusive)
     for i, p in enumerate(spec.inputs):
         add(name=p.name, causality="input", variability="continuous", initial=None, start=float(p.start),
-            unit=p.unit, description=p.description, type="Real", kind="inp", index=i, min=p.min, max=p.max)
+            unit=p.unit, description=p.description, type="Real", kind="inp", index=i, min=p.min, max=p.max,
+            min_exclusive=p.min_exclusive)
     for i, p in enumerate(spec.outputs):
         if p.type not in ("Real", "Integer"):
             raise ValueError(f"output {p.name}: type {p.type} (Real or Integer)")
