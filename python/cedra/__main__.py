@@ -26,6 +26,10 @@ def cmd_build(args):
         t1 = time.perf_counter()
         path = build_fmu(spec, Path(args.out))
         print(f"{spec.name}: {path} (model {t1 - t0:.1f} s, C code and compile {time.perf_counter() - t1:.1f} s)")
+    if not args.scenes:
+        from .ssp import SYSTEMS, build_system
+        for name in SYSTEMS:
+            print(f"{name}: {build_system(name, Path(args.out))} (SSP: plant + drive controller)")
     return 0
 
 

@@ -46,6 +46,8 @@ def params() -> list[Quantity]:
         Quantity("ctrl.mode", 1, "1", "0 equal torques from a PI on the forward speed (the paper's run, spec "
                  "section 10); 1 inverse kinematics (Eq. 13) with a PI loop per wheel rate", 0, 1, type="Integer"),
         Quantity("ctrl.tau_max", 4.0, "N.m", "torque limit of every wheel", 0.0, 1e3),
+        Quantity("ctrl.ramp_time", 0.0, "s", "the commands ramp up linearly from 0 over this time after the start "
+                 "(0: no ramp, the commands act at once)", 0.0, 1e4),
         Quantity("ctrl.speed_kp", 3.0, "N.m.s/m", "equal-torque mode: proportional gain on the speed error", 0.0),
         Quantity("ctrl.speed_ki", 6.0, "N.m/m", "equal-torque mode: integral gain on the speed error", 0.0),
         # a slipping wheel's own spin inertia (m_w R_w^2 / 2 = 1e-3 kg.m^2) is what the rate loop drives when the
@@ -104,7 +106,7 @@ def _pi(error, integral, kp, ki, limit, period):
     return ca.fmin(ca.fmax(u, -limit), limit), ca.if_else(ca.fabs(u) <= limit, integral + error * period, integral)
 
 
-STATES = ["speed_integral"] + [f"rate_integral[{k}]" for k in WHEELS] + ["speed_trim", "yaw_trim"]
+STATES = ["speed_integral"] + [f"rate_integral[{k}]" for k in WHEELS] + ["speed_trim", "yaw_trim", "elapsed"]
 TRIM_LIMITS = (1.0, 1.0)    # m/s, rad/s: the trims correct skid and slip, they do not take over the command
 
 
@@ -116,13 +118,16 @@ def sample_function(dims: str) -> ca.Function:
     p = {q.name: par[k] for k, q in enumerate(pars)}
     three = dims == "3d"
     T, lim = p["ctrl.period"], p["ctrl.tau_max"]
-    cmd_yaw = i["cmd.yaw_rate"] if three else 0
+    # the ramp counts samples (xd[9] = k T at sample k), so it is the same whatever time arithmetic a master uses
+    ramp = ca.if_else(p["ctrl.ramp_time"] > 0, ca.fmin(1, xd[9] / p["ctrl.ramp_time"]), 1)
+    cmd_v = i["cmd.v"] * ramp
+    cmd_yaw = i["cmd.yaw_rate"] * ramp if three else 0
     v = i["body.vx"] * ca.cos(i["body.yaw"]) + i["body.vy"] * ca.sin(i["body.yaw"]) if three else i["body.vx"]
-    trim_v = ca.fmin(ca.fmax(xd[7] + p["ctrl.trim_ki"] * (i["cmd.v"] - v) * T, -TRIM_LIMITS[0]), TRIM_LIMITS[0])
+    trim_v = ca.fmin(ca.fmax(xd[7] + p["ctrl.trim_ki"] * (cmd_v - v) * T, -TRIM_LIMITS[0]), TRIM_LIMITS[0])
     trim_w = ca.fmin(ca.fmax(xd[8] + p["ctrl.trim_ki"] * (cmd_yaw - i["body.wz"]) * T, -TRIM_LIMITS[1]),
                      TRIM_LIMITS[1]) if three else 0
     s = drive_symbols()
-    values = dict(xdot_d=i["cmd.v"] + trim_v, phidot_d=cmd_yaw + trim_w,
+    values = dict(xdot_d=cmd_v + trim_v, phidot_d=cmd_yaw + trim_w,
                   theta=ca.vertcat(i["bogie.theta[1]"], i["bogie.theta[2]"], i["fork.theta4"]),
                   theta_dot=ca.vertcat(i["bogie.rate[1]"], i["bogie.rate[2]"], i["fork.rate4"]),
                   psi=ca.vertcat(*[i[f"wheel[{k}].psi_R"] for k in WHEELS]),
@@ -138,15 +143,15 @@ def sample_function(dims: str) -> ca.Function:
     rates = at(e["rates"], values)
     # the steered wheels point at the turn center of the COMMANDED motion: the trims (skid and slip corrections)
     # act through the wheel rates only, so the axles stay on the center the rover is asked to turn about
-    steer = at(e["steer"], dict(values, xdot_d=i["cmd.v"], phidot_d=cmd_yaw))
-    speed_tau, speed_int = _pi(i["cmd.v"] - v, xd[0], p["ctrl.speed_kp"], p["ctrl.speed_ki"], lim, T)
+    steer = at(e["steer"], dict(values, xdot_d=cmd_v, phidot_d=cmd_yaw))
+    speed_tau, speed_int = _pi(cmd_v - v, xd[0], p["ctrl.speed_kp"], p["ctrl.speed_ki"], lim, T)
     ik = [_pi(rates[k] - i[f"wheel[{k + 1}].omega"], xd[1 + k], p["ctrl.rate_kp"], p["ctrl.rate_ki"], lim, T)
           for k in range(6)]
     ik_mode = p["ctrl.mode"] >= 0.5
     tau = [ca.if_else(ik_mode, ik[k][0], speed_tau) for k in range(6)]
     xd_next = ca.vertcat(ca.if_else(ik_mode, xd[0], speed_int),
                          *[ca.if_else(ik_mode, ik[k][1], xd[1 + k]) for k in range(6)],
-                         ca.if_else(ik_mode, trim_v, xd[7]), ca.if_else(ik_mode, trim_w, xd[8]))
+                         ca.if_else(ik_mode, trim_v, xd[7]), ca.if_else(ik_mode, trim_w, xd[8]), xd[9] + T)
     y = tau + ([steer[0], steer[1]] if three else []) + [rates[k] for k in range(6)] + [v]
     assert len(y) == len(outs)
     return ca.Function("cedra_sample", [inp, par, xd], [ca.vertcat(*y), xd_next], ["inp", "par", "xd"],

@@ -1,11 +1,17 @@
 """The project's own co-simulation master: a plant FMU and the drive controller FMU (cedra.controller) connected
-name to name, stepped with a fixed communication step.
+name to name, stepped with a fixed communication step h. Conventions:
 
-Order "plant-first" (Gauss-Seidel): at each communication point t the plant steps [t, t + h] with the controller's
-held outputs, then the controller gets the plant's outputs at t + h and takes its sample there, so the torque
-applied over [t, t + h] is computed from y(t): the spec section 10 loop, no delay. Order "jacobi": both FMUs step
-from the outputs both had at t (the controller's sample at t + h then uses y(t)): one communication step of
-delay, what masters that step every FMU from the same values do.
+  "plant-first" (Gauss-Seidel, the default): the plant steps [t, t + h] with the controller's held outputs, then
+                the controller gets the plant's outputs at t + h and takes its sample there, so the torque applied
+                over [t, t + h] is computed from y(t): the spec section 10 loop, no delay.
+  "jacobi"      both FMUs step from the values both had at t (the sample at t + h then uses y(t)): one step of
+                delay; the controller's sample 0 sees the plant's settled start.
+  "fmpy-ssp"    what FMPy's SSP simulator does (fmpy.ssp.simulation): Jacobi, every connection starts at 0 (the
+                first step feeds the controller zeros and the plant zero torques; sample 0 sees the controller's
+                own start values), time advances by t += h.
+  "libcosim"    what OSP libcosim's fixed-step master does: Jacobi, time in integer nanoseconds (t_k = k h_ns
+                / 1e9), the initial outputs passed to the connected inputs after initialization.
+Set to a master's convention, this master reproduces that master's run of the same SSP package (cedra.ssp).
 """
 from __future__ import annotations
 
@@ -17,7 +23,7 @@ import numpy as np
 
 from .driver import RoverFMU
 
-ORDERS = ("plant-first", "jacobi")
+ORDERS = ("plant-first", "jacobi", "fmpy-ssp", "libcosim")
 
 
 @dataclass
@@ -38,7 +44,7 @@ class DriveLoop:
     def __init__(self, plant_fmu, controller_fmu, plant_values: dict | None = None,
                  controller_values: dict | None = None, order: str = "plant-first"):
         if order not in ORDERS:
-            raise ValueError(f"order {order!r}: one of {', '.join(ORDERS)}")
+            raise ValueError(f"convention {order!r}: one of {', '.join(ORDERS)}")
         self.plant, self.ctrl = RoverFMU(plant_fmu, "plant"), RoverFMU(controller_fmu, "controller")
         self.plant_values, self.controller_values = dict(plant_values or {}), dict(controller_values or {})
         self.order = order
@@ -46,7 +52,10 @@ class DriveLoop:
         outputs = lambda f: {n for n, v in f.vars.items() if v.causality == "output"}    # noqa: E731
         self.measured = sorted(outputs(self.plant) & inputs(self.ctrl))     # plant -> controller
         self.commanded = sorted(outputs(self.ctrl) & inputs(self.plant))    # controller -> plant
-        missing = {n for n in inputs(self.ctrl) if not n.startswith("cmd.")} - set(self.measured)
+        optional = {"cmd.v", "cmd.yaw_rate"}
+        if not self.plant.has("steer[1]"):     # a plant without steering: the controller reads straight wheels
+            optional |= {"steer.theta[1]", "steer.theta[2]"}
+        missing = inputs(self.ctrl) - optional - set(self.measured)
         if missing:
             raise ValueError(f"the plant does not give the controller's inputs {sorted(missing)}")
         if "tau[1]" not in self.commanded:
@@ -58,45 +67,85 @@ class DriveLoop:
     def _command(self):
         self.plant.set(dict(zip(self.commanded, self.ctrl.get(self.commanded))))
 
-    def run(self, stop_time: float, dt: float, commands: Callable[[float], dict], record=(),
-            progress: Callable[[float], None] | None = None) -> LoopResult:
-        record = [n for n in record if self.plant.has(n) or self.ctrl.has(n)]
-        wall = time.perf_counter()
+    def _commands(self, t, commands):
+        if commands is not None:
+            self.ctrl.set({k: v for k, v in commands(t).items() if self.ctrl.has(k)})
+
+    def _times(self, stop_time: float, dt: float) -> list[float]:
+        """The communication points as the convention's master computes them."""
+        if self.order == "fmpy-ssp":      # `while time < stop_time: ... time += step_size`
+            ts = [0.0]
+            while ts[-1] < stop_time:
+                ts.append(ts[-1] + dt)
+            return ts
+        n = int(round(stop_time / dt))
+        if self.order == "libcosim":
+            ns = round(dt * 1e9)
+            return [k * ns / 1e9 for k in range(n + 1)]
+        return [k * dt for k in range(n + 1)]
+
+    def _start(self, commands):
         self.plant.start(self.plant_values)
-        cmd = {k: v for k, v in commands(0.0).items() if self.ctrl.has(k)}
         self.ctrl.fmu.instantiate(callbacks=self.ctrl._callbacks)
         self.ctrl.fmu.setupExperiment(startTime=0.0)
+        self.ctrl.set(self.controller_values)
+        self._commands(0.0, commands)
         self.ctrl.fmu.enterInitializationMode()
-        self.ctrl.set(self.controller_values | cmd)
-        self._measure()                                   # sample 0 from the plant's settled start
+        if self.order != "fmpy-ssp":                      # sample 0 from the plant's settled start
+            self._measure()
         self.ctrl.fmu.exitInitializationMode()
-        self._command()
+        self.ctrl.time = self.plant.time = 0.0
+        if self.order == "fmpy-ssp":                      # every connection starts at 0
+            self.ctrl.set({n: 0.0 for n in self.measured})
+            self.plant.set({n: 0.0 for n in self.commanded})
+        else:
+            self._command()
+
+    def run(self, stop_time: float, dt: float, commands: Callable[[float], dict] | None = None, record=(),
+            progress: Callable[[float], None] | None = None) -> LoopResult:
+        """Run to stop_time with communication step dt; `commands(t)` (optional) sets the controller's command
+        inputs (cmd.v, cmd.yaw_rate) at each communication point, else the controller's values stay."""
+        record = [n for n in record if self.plant.has(n) or self.ctrl.has(n)]
+        wall = time.perf_counter()
+        self._start(commands)
+        ts = self._times(stop_time, dt)
+        n = len(ts) - 1
         rows, ok = [], True
-        n = int(round(stop_time / dt))
         for k in range(n + 1):
-            t = k * dt
-            rows.append(np.concatenate([[t], self._values(record)]))
+            rows.append(np.concatenate([[ts[k]], self._values(record)]))
             if k == n:
                 break
-            if self.order == "jacobi":
-                self._measure()
-                self.ctrl.set({kk: v for kk, v in commands(t).items() if self.ctrl.has(kk)})
-                ok = self.plant.step((k + 1) * dt) and self.ctrl.step((k + 1) * dt)
-                self._command()
-            else:
-                ok = self.plant.step((k + 1) * dt)
+            h = ts[k + 1] - ts[k] if self.order != "fmpy-ssp" else dt
+            if self.order == "plant-first":
+                ok = self._step(self.plant, ts[k], h)
                 if ok:
                     self._measure()
-                    self.ctrl.set({kk: v for kk, v in commands((k + 1) * dt).items() if self.ctrl.has(kk)})
-                    ok = self.ctrl.step((k + 1) * dt)
+                    self._commands(ts[k + 1], commands)
+                    ok = self._step(self.ctrl, ts[k], h)
                     self._command()
+            else:
+                self._commands(ts[k], commands)
+                ok = self._step(self.plant, ts[k], h) and self._step(self.ctrl, ts[k], h)
+                self._measure()
+                self._command()
             if not ok:
                 break
             if progress:
-                progress((k + 1) * dt)
-        result = LoopResult(["time"] + record, np.array(rows), ok, time.perf_counter() - wall,
-                            self.plant.messages + self.ctrl.messages)
-        return result
+                progress(ts[k + 1])
+        return LoopResult(["time"] + record, np.array(rows), ok, time.perf_counter() - wall,
+                          self.plant.messages + self.ctrl.messages)
+
+    @staticmethod
+    def _step(fmu: RoverFMU, t: float, h: float) -> bool:
+        """fmi2DoStep(t, h) exactly as given (the convention decides both numbers)."""
+        from fmpy.fmi1 import FMICallException
+        try:
+            fmu.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+        except FMICallException:
+            fmu.status = "failed"
+            return False
+        fmu.time = t + h
+        return True
 
     def _values(self, names) -> np.ndarray:
         """Plant outputs from the plant, everything else from the controller (one get per FMU)."""
