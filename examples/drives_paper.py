@@ -5,7 +5,7 @@ spinning wheels and wheel slip when the torque command is not limited by a motor
     python examples/drives_paper.py [stop_time]     # writes out/drives_paper/, prints a summary
 
 Writes out/drives_paper/<scene>.csv (one per run) and spin_and_load.png (wheel spin rates and normal forces of
-both runs). tests/test_drives.py runs compare() with a short stop time.
+both runs). tests/test_drives.py runs run() with a short stop time.
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ WHEELS = range(1, 7)
 SHOWN = {1: "bogie front (1, 3)", 2: "bogie rear (2, 4)", 5: "rear (5)", 6: "front fork (6)"}   # 2D: 3 = 1, 4 = 2
 
 
-def run(scene, build_dir="build", stop_time=None) -> dict[str, np.ndarray]:
+def run_scene(scene, build_dir="build", stop_time=None) -> dict[str, np.ndarray]:
     """One closed-loop bump run of a shipped scene; its outputs by name, with "time" and "tau_cmd" (the
     controller's command to every wheel, held over the following sample)."""
     from cedra import scene as scn
@@ -109,23 +109,25 @@ def plot(path, runs, noload_speed):
     plt.close(fig)
 
 
-def compare(build_dir="build", out_dir="out/drives_paper", stop_time=None) -> dict[str, dict[str, float]]:
-    """Both runs: CSVs and the figure into out_dir, the summary printed and returned (scene -> figures)."""
+def run(out_dir="out/drives_paper", build_dir="build", stop_time=None, quiet=False) -> dict[str, dict[str, float]]:
+    """Both runs: CSVs and the figure into out_dir, the summary printed (unless quiet) and returned (scene ->
+    figures)."""
     from cedra.parameters import DEFAULTS
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    runs = {scene: run(scene, build_dir, stop_time) for scene in SCENES}
+    runs = {scene: run_scene(scene, build_dir, stop_time) for scene in SCENES}
     for scene, c in runs.items():
         write_csv(out / f"{scene}.csv", c)
     plot(out / "spin_and_load.png", runs, DEFAULTS["drive_noload_speed"])
     figures = {scene: summary(c, DEFAULTS["drive_viscous"]) for scene, c in runs.items()}
-    width = max(map(len, next(iter(figures.values()))))
-    print(f"{'':{width}}  " + "  ".join(f"{s:>14}" for s in SCENES))
-    for key in figures[SCENES[0]]:
-        print(f"{key:{width}}  " + "  ".join(f"{figures[s][key]:14.6g}" for s in SCENES))
-    print(f"wrote {', '.join(str(out / f'{s}.csv') for s in SCENES)}, {out / 'spin_and_load.png'}")
+    if not quiet:
+        width = max(map(len, next(iter(figures.values()))))
+        print(f"{'':{width}}  " + "  ".join(f"{s:>14}" for s in SCENES))
+        for key in figures[SCENES[0]]:
+            print(f"{key:{width}}  " + "  ".join(f"{figures[s][key]:14.6g}" for s in SCENES))
+        print(f"wrote {', '.join(str(out / f'{s}.csv') for s in SCENES)}, {out / 'spin_and_load.png'}")
     return figures
 
 
 if __name__ == "__main__":
-    compare(stop_time=float(sys.argv[1]) if len(sys.argv) > 1 else None)
+    run(stop_time=float(sys.argv[1]) if len(sys.argv) > 1 else None)

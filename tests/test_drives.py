@@ -294,7 +294,7 @@ def test_drives_paper_example(tmp_path):
     while the drives brake: the README's full-run figures)."""
     built = REPO / "build"          # else the example builds both FMUs into tmp_path itself
     both_built = all((built / f"{s}.fmu").exists() for s in drives_paper.SCENES)
-    figures = drives_paper.compare(build_dir=built if both_built else tmp_path, out_dir=tmp_path / "out",
+    figures = drives_paper.run(build_dir=built if both_built else tmp_path, out_dir=tmp_path / "out",
                                    stop_time=5.0)
     for name in ("bump2d.csv", "bump2d_drives.csv", "spin_and_load.png"):
         assert (tmp_path / "out" / name).stat().st_size > 1000, name

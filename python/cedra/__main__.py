@@ -34,11 +34,22 @@ def cmd_build(args):
 
 
 def cmd_simulate(args):
-    from . import simulate
-    if args.scene != "bump2d":
-        print("error: the main job is the bump2d scene", file=sys.stderr)
+    from . import scenario, simulate
+    if args.list:
+        print(f"{scenario.MAIN_JOB:18s} the main job: the paper's bump run (cedra.simulate)")
+        for name, line in scenario.scenarios().items():
+            print(f"{name:18s} {line}")
+        return 0
+    if args.scene == scenario.MAIN_JOB:
+        return simulate.main(Path(args.build) / "bump2d.fmu", Path(args.out) / "bump2d", args.stop_time or 15.0)
+    try:
+        mod = scenario.load(args.scene)
+        mod.run(out_dir=str(Path(args.out) / args.scene), build_dir=args.build, stop_time=args.stop_time,
+                quiet=args.quiet)
+    except scenario.ScenarioError as e:
+        print(f"error: {e}", file=sys.stderr)
         return 2
-    return simulate.main(Path(args.build) / "bump2d.fmu", Path(args.out) / "bump2d", args.stop_time)
+    return 0
 
 
 def cmd_compare(args):
@@ -66,11 +77,13 @@ def main(argv=None):
                        "drive controllers drive2d, drive3d)")
     b.add_argument("scenes", nargs="*", help="shipped scene names, .toml files, or drive2d / drive3d")
     b.add_argument("--out", default="build")
-    s = sub.add_parser("simulate", help="run the main job (the paper's bump run)")
-    s.add_argument("scene", nargs="?", default="bump2d")
+    s = sub.add_parser("simulate", help="run the main job (bump2d: the paper's bump run) or a scenario script")
+    s.add_argument("scene", nargs="?", default="bump2d", help="bump2d or a scenario in examples/ (see --list)")
+    s.add_argument("--list", action="store_true", help="list the scenarios")
     s.add_argument("--build", default="build")
     s.add_argument("--out", default="out")
-    s.add_argument("--stop-time", type=float, default=15.0)
+    s.add_argument("--stop-time", type=float, default=None, help="s (default: the scenario's own)")
+    s.add_argument("--quiet", action="store_true", help="no progress, no summary")
     c = sub.add_parser("compare", help="compliant vs rigid contact on the bump (same torques)")
     c.add_argument("--build", default="build")
     c.add_argument("--out", default="out/compare")

@@ -122,20 +122,25 @@ def plot(out_dir, names, rows, torques, terrain):
     plt.close(fig)
 
 
-def main(fmu_path="build/bump2d.fmu", out_dir="out/bump2d", stop_time=15.0):
+def bump_terrain(fmu_path):
+    """Z(X) of the FMU's bump terrain at its start values (for the plots), and the bump's position."""
     from fmpy import read_model_description
     start = {v.name: float(v.start) for v in read_model_description(str(fmu_path)).modelVariables
              if v.name in ("terrain_h", "terrain_w", "terrain_x0")}
 
     def terrain(X):
         return start["terrain_h"] * np.exp(-((X - start["terrain_x0"]) / start["terrain_w"]) ** 2)
+    return terrain, start["terrain_x0"]
 
+
+def main(fmu_path="build/bump2d.fmu", out_dir="out/bump2d", stop_time=15.0):
+    terrain, x0 = bump_terrain(fmu_path)
     names, rows, torques, info = run_bump(fmu_path, stop_time)
     write_outputs(out_dir, names, rows, torques, terrain)
     x_end = rows[-1][names.index("body.x")]
     rtf = info["simulated"] / info["wall"]
     print(f"bump2d: simulated {info['simulated']:.2f} s in {info['wall']:.2f} s wall (real-time factor {rtf:.1f}), "
-          f"body.x {x_end:.3f} m (bump at {start['terrain_x0']} m), status {info['status']}")
+          f"body.x {x_end:.3f} m (bump at {x0} m), status {info['status']}")
     print(f"wrote {out_dir}/bump2d.csv, {out_dir}/forces.png, {out_dir}/path.png")
     if not info["ok"]:
         print("FMU stopped:", *info["messages"][-3:], sep="\n  ")

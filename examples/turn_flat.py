@@ -1,0 +1,97 @@
+"""Turn on flat ground: 3D, constant commanded speed and yaw rate through the drive controller; the path is a circle.
+
+    python examples/turn_flat.py            (or: python -m cedra simulate turn_flat)
+
+Writes out/turn_flat/: turn_flat.csv, path.png (the body's path and the commanded circle), tracking.png
+(commanded vs measured yaw rate and speed, steering angles, wheel slips), and prints a summary.
+Edit SPEED, YAW_RATE, STOP_TIME to try other turns.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+SPEED, YAW_RATE = 0.2, 0.3         # m/s, rad/s (positive turns left): a circle of radius SPEED / YAW_RATE
+STOP_TIME = 20.0                   # s
+STEP = 0.01                        # s, communication step = the controller's period
+RECORD = (["body.x", "body.y", "body.yaw", "body.vx", "body.vy", "body.wz", "steer.theta[1]", "steer.theta[2]",
+           "steer[1]", "steer[2]"] + [f"wheel[{i}].slip" for i in range(1, 7)] +
+          [f"tau[{i}]" for i in range(1, 7)])
+
+
+def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False) -> dict:
+    from cedra.cosim import DriveLoop
+    from cedra.scenario import Progress, fmu, write_csv
+    stop_time = stop_time or STOP_TIME
+    loop = DriveLoop(fmu("flat3d", build_dir), fmu("drive3d", build_dir))
+    progress = Progress(stop_time, "turn_flat", quiet)
+    try:
+        r = loop.run(stop_time, STEP, lambda t: {"cmd.v": SPEED, "cmd.yaw_rate": YAW_RATE}, RECORD, progress)
+    finally:
+        progress.done()
+        loop.close()
+    if not r.ok:
+        raise RuntimeError("turn_flat stopped early: " + "; ".join(r.messages[-2:]))
+    out = Path(out_dir)
+    write_csv(out / "turn_flat.csv", r.names, r.rows)
+    t = r.column("time")
+    late = t >= min(8.0, 0.5 * stop_time)
+    speed = np.hypot(r.column("body.vx"), r.column("body.vy"))
+    wz = r.column("body.wz")
+    summary = dict(yaw_rate=float(wz[late].mean()), speed=float(speed[late].mean()),
+                   radius=float((speed[late] / wz[late]).mean()), commanded_radius=SPEED / YAW_RATE,
+                   wall=r.wall)
+    _plots(out, r, t, speed, wz)
+    if not quiet:
+        print(f"turn_flat: yaw rate {summary['yaw_rate']:.4f} rad/s (commanded {YAW_RATE}), speed "
+              f"{summary['speed']:.4f} m/s ({SPEED}), radius {summary['radius']:.4f} m ({SPEED / YAW_RATE:.4f}), "
+              f"{stop_time:g} s in {r.wall:.1f} s wall -> {out}")
+    return summary
+
+
+def _plots(out, r, t, speed, wz):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(5, 5))
+    x, y = r.column("body.x"), r.column("body.y")
+    radius = SPEED / YAW_RATE
+    late = t >= 0.5 * t[-1]           # the circle of the commanded radius about the turn center after the start
+    cx = np.mean(x[late] - r.column("body.vy")[late] / wz[late])
+    cy = np.mean(y[late] + r.column("body.vx")[late] / wz[late])
+    a = np.linspace(0, 2 * np.pi, 200)
+    ax.plot(cx + radius * np.cos(a), cy + radius * np.sin(a), "k--", lw=0.8,
+            label=f"radius v/yaw rate = {radius:.3f} m")
+    ax.plot(x, y, label="body path")
+    ax.set_aspect("equal")
+    ax.set_xlabel("X, m")
+    ax.set_ylabel("Y, m")
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "path.png", dpi=110)
+    plt.close(fig)
+    fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
+    axs[0].plot(t, wz, label="measured")
+    axs[0].axhline(YAW_RATE, color="k", ls="--", lw=0.8, label="commanded")
+    axs[0].set_ylabel("yaw rate, rad/s")
+    axs[1].plot(t, speed, label="measured")
+    axs[1].axhline(SPEED, color="k", ls="--", lw=0.8, label="commanded")
+    axs[1].set_ylabel("speed, m/s")
+    for k, n in ((1, "rear wheel 5"), (2, "front wheel 6")):
+        axs[2].plot(t, np.degrees(r.column(f"steer.theta[{k}]")), label=f"{n}")
+        axs[2].plot(t, np.degrees(r.column(f"steer[{k}]")), ls=":", label=f"{n} command")
+    axs[2].set_ylabel("steering, deg")
+    for i in range(1, 7):
+        axs[3].plot(t, r.column(f"wheel[{i}].slip"), label=f"wheel {i}")
+    axs[3].set_ylabel("slip speed, m/s")
+    axs[3].set_xlabel("time, s")
+    for a_ in axs:
+        a_.legend(fontsize=7, ncol=3)
+    fig.tight_layout()
+    fig.savefig(out / "tracking.png", dpi=100)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    run()
