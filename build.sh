@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
 # ./build.sh         set up .venv (if missing), generate, compile and package every shipped scene into build/
+#                    (pip installs requirements.txt and the package with its 'bench' extra: mujoco, for the benchmark)
 # ./build.sh demo    ... then run the main job: the paper's bump run (out/bump2d/: CSV, plots; prints timing)
 # ./build.sh test    ... then run the tests
 set -euo pipefail
@@ -8,7 +9,7 @@ if [ ! -x .venv/bin/python ]; then
     python3 -m venv .venv
     .venv/bin/pip install -q --upgrade pip
 fi
-if ! .venv/bin/pip install -q --disable-pip-version-check -r requirements.txt -e . >/tmp/cedra-pip.log 2>&1; then
+if ! .venv/bin/pip install -q --disable-pip-version-check -r requirements.txt -e '.[bench]' >/tmp/cedra-pip.log 2>&1; then
     cat /tmp/cedra-pip.log; exit 1
 fi
 PY=.venv/bin/python

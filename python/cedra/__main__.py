@@ -91,6 +91,10 @@ def main(argv=None):
     be = sub.add_parser("bench", help="benchmark the shipped FMUs (prints figures)")
     be.add_argument("--build", default="build")
     be.add_argument("--stop-time", type=float, default=10.0)
+    be.add_argument("--quick", action="store_true",
+                    help="only the MuJoCo side-by-side table, 1 s runs (what the tests run)")
+    be.add_argument("--side-by-side", action="store_true",
+                    help="only the MuJoCo side-by-side table (the paper's 15 s run)")
     r = sub.add_parser("report", help="work-precision or stability report")
     r.add_argument("which", choices=["precision", "stability"])
     r.add_argument("--build", default="build")

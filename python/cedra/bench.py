@@ -7,6 +7,13 @@ cedra_rjac (compiled here by CasADi's code generator + gcc into a shared library
 evaluated many times in one mapped call, so the per-call figure is the C code's, not Python's). A peer on the
 same equations in the same run (scipy Radau with the exact Jacobian, rtol = atol = the FMU's tol) gives ratios.
 Figures are printed, never asserted on.
+
+Then, when the optional dependency mujoco is importable (`pip install -e '.[bench]'`, ./build.sh does it), the
+MuJoCo side by side of issue 13 (`side_by_side`): the paper's 15 s run under the spec section 10 speed controller
+on MuJoCo (cedra.mujoco_model) on the bump as a height field (1 cm cells), on a plane and on the hills3d grid as
+a height field, at dt 1, 0.5 and 0.2 ms, and through the FMUs bump2d, bump3d, flat3d and hills3d: CPU time
+(time.process_time), real-time factor, x at 6 s, peak normal force, steps, and the ratios MuJoCo CPU / FMU CPU
+of the matching pairs. `--quick`: only that table, 1 s runs (the tests); `--side-by-side`: only that table.
 """
 from __future__ import annotations
 
@@ -131,6 +138,10 @@ def bench_contact(build, stop_time):
 def main(args):
     build = Path(getattr(args, "build", "build"))
     stop_time = float(getattr(args, "stop_time", 10.0))
+    if getattr(args, "quick", False):       # the MuJoCo side-by-side table only, short (what the tests run)
+        return print_side_by_side(build, QUICK_STOP)
+    if getattr(args, "side_by_side", False):
+        return print_side_by_side(build, SIDE_STOP)
     if not shutil.which("gcc"):
         print("error: gcc not found (needed to time the generated C)", file=sys.stderr)
         return 2
@@ -172,4 +183,112 @@ def main(args):
     if all(rows.values()):
         for label in ("bump2d_rigid", "bump2d_rigid dopri5"):
             print(f"  ratio {label} / bump2d wall time: x{rows[label]['wall'] / rows['bump2d']['wall']:.2f}")
-    return rc
+    return max(rc, print_side_by_side(build, SIDE_STOP))
+
+
+# ------------------------------------------------------------------ MuJoCo side by side (issue 13)
+SIDE_STOP = 15.0                     # the paper's run
+QUICK_STOP = 1.0
+X_AT = 6.0
+MUJOCO_DTS = (1e-3, 5e-4, 2e-4)
+MUJOCO_RUNS = {      # terrain label: (scene whose numbers and start it takes, MuJoCo terrain)
+    "bump": ("bump3d", "hfield"),
+    "plane": ("flat3d", "plane"),
+    "hills": ("hills3d", "hfield"),
+}
+FMU_RUNS = ("bump2d", "bump3d", "flat3d", "hills3d")
+PAIRS = (("bump3d", "MuJoCo bump 1 ms"), ("hills3d", "MuJoCo hills 1 ms"), ("flat3d", "MuJoCo plane 1 ms"),
+         ("bump2d", "MuJoCo bump 1 ms"))
+
+
+def fmu_closed_loop(path, stop_time, settings: dict | None = None, label=""):
+    """The paper's run through the FMU (spec section 10, the main job's controller), reading only what the table
+    needs (body.vx for the controller, body.x, the six wheel[i].Fn) in one fmi2GetReal per sample, so the CPU
+    time is the FMU's and not the Python glue's. Timed with time.process_time from fmi2Instantiate (the
+    static settle included) to the last step; the FMU's unzip is not timed."""
+    from .driver import RoverFMU
+    from .mujoco_model import Result
+    from .simulate import SAMPLE, SpeedController
+    f = RoverFMU(path)
+    vr = [f.vars[n].valueReference for n in ["body.vx", "body.x"] + [f"wheel[{i}].Fn" for i in range(1, 7)]]
+    tau_vr = [f.vars[f"tau[{i}]"].valueReference for i in range(1, 7)]
+    n = int(round(stop_time / SAMPLE))
+    ctrl = SpeedController()
+    t, x, F = np.empty(n + 1), np.empty(n + 1), np.empty((n + 1, 6))
+    ok = True
+    cpu = time.process_time()
+    f.start(settings or {})
+    for k in range(n + 1):
+        y = f.fmu.getReal(vr)
+        t[k], x[k], F[k] = k * SAMPLE, y[1], y[2:8]
+        if k == n:
+            break
+        f.fmu.setReal(tau_vr, [ctrl(y[0])] * 6)
+        if not f.step((k + 1) * SAMPLE):
+            ok = False
+            t, x, F = t[:k + 1], x[:k + 1], F[:k + 1]
+            break
+    cpu = time.process_time() - cpu
+    steps, rejected = (int(v) for v in f.get(["solver.steps", "solver.rejected"]))
+    msg = "" if ok else f"{f.status}: " + "; ".join(f.messages[-2:])
+    f.close()
+    return Result(label or f"FMU {Path(path).stem}", cpu, float(t[-1]), steps, t, x, F, ok, msg,
+                  extra=dict(rejected=rejected))
+
+
+def side_by_side(build: Path, stop_time=SIDE_STOP, dts=MUJOCO_DTS, log=print) -> dict:
+    """Every row of the table: MuJoCo on the bump (height field), on a plane and on the hills grid (height field)
+    at each dt, and the FMUs; label -> Result (None: the FMU is not built)."""
+    from . import mujoco_model as mm
+    from .scene import load_shipped
+    rows = {}
+    for name, (scene, terrain) in MUJOCO_RUNS.items():
+        sc = load_shipped(scene)
+        for dt in dts:
+            label = f"MuJoCo {name} {dt * 1e3:g} ms"
+            rows[label] = mm.run(sc, terrain, dt, stop_time, label=label)
+            log(f"  ... {label}: {rows[label].cpu:.2f} s CPU")
+    for name in FMU_RUNS:
+        path = Path(build) / f"{name}.fmu"
+        label = f"FMU {name}"
+        rows[label] = fmu_closed_loop(path, stop_time, label=label) if path.exists() else None
+        if rows[label] is not None:
+            log(f"  ... {label}: {rows[label].cpu:.2f} s CPU")
+    return rows
+
+
+def side_by_side_table(rows: dict, stop_time: float) -> list[str]:
+    """The table (markdown) and the ratios MuJoCo CPU / FMU CPU of the matching pairs."""
+    tx = min(X_AT, stop_time)
+    out = [f"| run | CPU s | real-time factor | x at {tx:g} s (m) | peak Fn (N) | steps (rejected) |",
+           "|---|---|---|---|---|---|"]
+    for label, r in rows.items():
+        if r is None:
+            out.append(f"| {label} | not built (python -m cedra build {label.split()[-1]}) | | | | |")
+            continue
+        steps = f"{r.steps}" + (f" ({r.extra['rejected']})" if "rejected" in r.extra else "")
+        note = "" if r.ok else f" STOPPED at {r.simulated:g} s: {r.message}"
+        out.append(f"| {label}{note} | {r.cpu:.3f} | {r.simulated / r.cpu:.1f} | {r.x_at(tx):.4f} | "
+                   f"{r.peak_fn:.1f} | {steps} |")
+    out.append("")
+    for fmu, mj in PAIRS:
+        a, b = rows.get(f"FMU {fmu}"), rows.get(mj)
+        if a is not None and b is not None:
+            out.append(f"- {mj} / FMU {fmu} CPU: x{b.cpu / a.cpu:.1f}")
+    return out
+
+
+def print_side_by_side(build: Path, stop_time: float, dts=MUJOCO_DTS) -> int:
+    from . import mujoco_model as mm
+    if not mm.available():
+        print("\nMuJoCo side by side: skipped, mujoco is not installed (pip install -e '.[bench]'; ./build.sh "
+              "installs it)")
+        return 0
+    import mujoco
+    print(f"\nMuJoCo side by side (issue 13): the paper's run, {stop_time:g} s, the spec section 10 speed "
+          f"controller every 0.01 s; MuJoCo {mujoco.__version__} (cedra.mujoco_model, Euler, settled "
+          f"{mm.SETTLE:g} s untimed), FMUs at their scene defaults; CPU = time.process_time; peak Fn = the largest "
+          f"wheel normal force at the 0.01 s samples")
+    rows = side_by_side(build, stop_time, dts)
+    print("\n".join(side_by_side_table(rows, stop_time)))
+    return 0 if all(r is not None and r.ok for r in rows.values()) else 1
