@@ -227,12 +227,18 @@ class FuzzResult:
     seconds: float = 0.0
     processes: int = 0
     steps_ok: int = 0
+    call_limit: float = 0.0
     findings: list[Finding] = field(default_factory=list)
 
     def summary(self) -> str:
         rate = self.sequences / self.seconds if self.seconds > 0 else 0.0
-        return (f"{self.target}: {self.sequences} sequences, {self.calls} calls ({self.steps_ok} DoSteps OK), "
+        text = (f"{self.target}: {self.sequences} sequences, {self.calls} calls ({self.steps_ok} DoSteps OK), "
                 f"{len(self.findings)} findings, {self.seconds:.1f} s ({rate:.1f} sequences/s)")
+        hung = sum(f.text.startswith("(h)") for f in self.findings) * self.call_limit
+        if hung > 0 and self.seconds > hung:   # calls stopped at the limit: their time says nothing of the rate
+            text += (f"; {hung:.0f} s of it in calls stopped at the {self.call_limit:g} s limit, "
+                     f"{self.sequences / (self.seconds - hung):.1f} sequences/s in the rest")
+        return text
 
     def report(self, max_kinds: int = 20) -> str:
         lines = [self.summary()]
@@ -298,7 +304,7 @@ def fuzz(fmu, target: str | None = None, sequences: int | None = None, seed: int
         sequences = 1000
     exe = build(fmu, "asan", defines)
     uri = resources_uri(fmu)
-    res = FuzzResult(target or Path(fmu).stem, exe)
+    res = FuzzResult(target or Path(fmu).stem, exe, call_limit=call_limit)
     t0 = time.monotonic()
     next_seed, left = seed, sequences
     while True:
