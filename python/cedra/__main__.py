@@ -1,4 +1,4 @@
-"""Command line: python -m cedra build|simulate|bench|report ..."""
+"""Command line: python -m cedra build|simulate|compare|bench|report|fuzz ..."""
 from __future__ import annotations
 
 import argparse
@@ -70,6 +70,11 @@ def cmd_report(args):
     return r.main(args)
 
 
+def cmd_fuzz(args):
+    from . import fuzz
+    return fuzz.main(args)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m cedra")
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -100,9 +105,11 @@ def main(argv=None):
     r.add_argument("--build", default="build")
     r.add_argument("--out", default="out/report")
     r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")
+    from .fuzz import add_parser as add_fuzz_parser
+    add_fuzz_parser(sub)
     args = ap.parse_args(argv)
     commands = {"build": cmd_build, "simulate": cmd_simulate, "compare": cmd_compare, "bench": cmd_bench,
-                "report": cmd_report}
+                "report": cmd_report, "fuzz": cmd_fuzz}
     return commands[args.cmd](args)
 
 
