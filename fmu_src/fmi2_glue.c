@@ -279,15 +279,38 @@ static int get_value(instance *c, const char *fn, const cedra_var *v, double *ou
     }
 }
 
+/* stores a value as element k of an fmi2Get* array of the given type */
+static void store_as(void *values, int type, size_t k, double d) {
+    switch (type) {
+        case CEDRA_REAL: ((fmi2Real *)values)[k] = d; break;
+        case CEDRA_INTEGER:
+            d = nearbyint(d);
+            ((fmi2Integer *)values)[k] = d > 2147483647.0 ? 2147483647 : d < -2147483648.0 ? (-2147483647 - 1)
+                                                                                          : (fmi2Integer)d;
+            break;
+        default: ((fmi2Boolean *)values)[k] = d != 0.0 ? fmi2True : fmi2False; break;
+    }
+}
+
+/* Every reference is checked before any value is computed: an output read in initialization mode computes the
+ * start state, which a refused call must not leave behind. */
+static fmi2Status get_values(instance *c, const char *fn, const fmi2ValueReference vr[], size_t nvr, void *values,
+                             int type) {
+    for (size_t k = 0; k < nvr; k++)
+        if (!lookup(c, fn, vr[k], type)) return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        double d;
+        if (get_value(c, fn, &CEDRA_VARS[vr[k]], &d)) return fmi2Error;
+        store_as(values, type, k, d);
+    }
+    return fmi2OK;
+}
+
 fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
     instance *c = (instance *)comp;
     if (!c) return fmi2Error;
     if (!allowed(c, "fmi2GetReal", PH_GET) || !check_array_args(c, "fmi2GetReal", vr, nvr, value)) return fmi2Error;
-    for (size_t k = 0; k < nvr; k++) {
-        const cedra_var *v = lookup(c, "fmi2GetReal", vr[k], CEDRA_REAL);
-        if (!v || get_value(c, "fmi2GetReal", v, &value[k])) return fmi2Error;
-    }
-    return fmi2OK;
+    return get_values(c, "fmi2GetReal", vr, nvr, value, CEDRA_REAL);
 }
 
 fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
@@ -295,14 +318,7 @@ fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr[], siz
     if (!c) return fmi2Error;
     if (!allowed(c, "fmi2GetInteger", PH_GET) || !check_array_args(c, "fmi2GetInteger", vr, nvr, value))
         return fmi2Error;
-    for (size_t k = 0; k < nvr; k++) {
-        double d;
-        const cedra_var *v = lookup(c, "fmi2GetInteger", vr[k], CEDRA_INTEGER);
-        if (!v || get_value(c, "fmi2GetInteger", v, &d)) return fmi2Error;
-        d = nearbyint(d);
-        value[k] = d > 2147483647.0 ? 2147483647 : d < -2147483648.0 ? (-2147483647 - 1) : (fmi2Integer)d;
-    }
-    return fmi2OK;
+    return get_values(c, "fmi2GetInteger", vr, nvr, value, CEDRA_INTEGER);
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
@@ -310,13 +326,7 @@ fmi2Status fmi2GetBoolean(fmi2Component comp, const fmi2ValueReference vr[], siz
     if (!c) return fmi2Error;
     if (!allowed(c, "fmi2GetBoolean", PH_GET) || !check_array_args(c, "fmi2GetBoolean", vr, nvr, value))
         return fmi2Error;
-    for (size_t k = 0; k < nvr; k++) {
-        double d;
-        const cedra_var *v = lookup(c, "fmi2GetBoolean", vr[k], CEDRA_BOOLEAN);
-        if (!v || get_value(c, "fmi2GetBoolean", v, &d)) return fmi2Error;
-        value[k] = d != 0.0 ? fmi2True : fmi2False;
-    }
-    return fmi2OK;
+    return get_values(c, "fmi2GetBoolean", vr, nvr, value, CEDRA_BOOLEAN);
 }
 
 fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {

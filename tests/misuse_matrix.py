@@ -232,6 +232,11 @@ def _getter_setter_cases(md) -> list[Case]:
             cases.append(Case("unknown references and wrong types", f"{fn} vr {bad}", phase,
                               lambda p, fn=fn, arr=arr, bad=bad: p.raw(fn, p.c, _u([bad]), C.c_size_t(1), arr([0])),
                               ERROR, f"{fn}: unknown value reference {bad}"))
+    # an output read in initialization mode computes the start state: a vector that is refused must not
+    cases.append(Case("unknown references and wrong types", "fmi2GetReal [an output, an unknown vr] (init)", "init",
+                      lambda p: p.raw("fmi2GetReal", p.c, _u([real_out.valueReference, n + 7]), C.c_size_t(2),
+                                      _d([0, 0])),
+                      ERROR, f"fmi2GetReal: unknown value reference {n + 7}"))
     for fn in ("fmi2GetString", "fmi2SetString"):
         cases.append(Case("unknown references and wrong types", f"{fn} on a Real", "init",
                           lambda p, fn=fn, vr=real_in.valueReference: p.raw(

@@ -57,7 +57,7 @@
 #pragma GCC diagnostic ignored "-Wunused-variable"
 #include "cedra_vars.h"
 #pragma GCC diagnostic pop
-#include "solver.h"
+#include "glue.h"      /* the FMU's own state struct, to name what a refused call changed */
 
 #if defined(__SANITIZE_ADDRESS__)
 #include <sanitizer/common_interface_defs.h>
@@ -187,13 +187,16 @@ static double wild_real(const cedra_var *v) {
     }
 }
 
+static int clamp_int32(long long x) { return x > INT32_MAX ? INT32_MAX : x < INT32_MIN ? INT32_MIN : (int)x; }
+
 static int wild_int(const cedra_var *v) {
     switch (irand(9)) {
         case 0: case 1: case 2:
             return isfinite(v->min) && isfinite(v->max) ? (int)v->min + irand((int)(v->max - v->min) + 1)
                                                         : (int)v->start;
-        case 3: return isfinite(v->min) ? (int)v->min - 1 : -1;
-        case 4: return isfinite(v->max) ? (int)v->max + 1 : 3;
+        /* just outside the range, where an fmi2Integer can be (a bound at INT32_MIN/MAX has no outside) */
+        case 3: return isfinite(v->min) ? clamp_int32((long long)v->min - 1) : -1;
+        case 4: return isfinite(v->max) ? clamp_int32((long long)v->max + 1) : 3;
         case 5: return INT32_MIN;
         case 6: return INT32_MAX;
         case 7: return (int)(int32_t)(uint32_t)rnd();
@@ -319,25 +322,7 @@ static const fmi2CallbackFunctions CALLBACKS_TEMPLATE = {logger, fuzz_calloc, fr
 
 /* ------------------------------------------------------------------------------ state snapshots for (e) */
 
-/* The glue's cedra_state, mirrored only to name the bytes a refused call changed in a finding. If the glue's
- * struct changes, sizes disagree and findings name byte offsets instead. */
-#define DIM(n) ((n) > 0 ? (n) : 1)
-typedef struct {
-    unsigned int magic, size;
-    char guid[64];
-    int phase;
-    double time, start_time, last_good_time;
-    int terminated, outputs_valid;
-    double x[CEDRA_NX];
-    double inp[DIM(CEDRA_NI)];
-    double par[DIM(CEDRA_NP)];
-    double y[DIM(CEDRA_NY)];
-    double q_start[CEDRA_NQ];
-    double u_start[CEDRA_NQ];
-    int settle;
-    solver_settings solver;
-    solver_stats stats;
-} mirror_state;
+typedef cedra_state mirror_state;       /* glue.h, from the FMU's sources/ */
 
 static void element_name(const char *field, int i, char *out, size_t len) {
     const cedra_var *v = NULL;
@@ -378,10 +363,10 @@ static void describe_change(const unsigned char *a, const unsigned char *b, size
         k += (size_t)snprintf(out + k, len - k, "%s%s: %.17g -> %.17g", shown ? "; " : "", name, p->f, q->f);     \
         shown++;                                                                                                  \
     }
-#define ARR_FIELD(f, cnt)                                                                                         \
+#define ARR_FIELD(f, label, cnt)                                                                                  \
     for (int i = 0; i < (cnt); i++) {                                                                             \
         char nm[128];                                                                                             \
-        element_name(#f, i, nm, sizeof nm);                                                                       \
+        element_name(label, i, nm, sizeof nm);                                                                    \
         DBL_FIELD(f[i], nm)                                                                                       \
     }
     INT_FIELD(magic) INT_FIELD(size) INT_FIELD(phase) INT_FIELD(terminated) INT_FIELD(outputs_valid)
@@ -390,11 +375,16 @@ static void describe_change(const unsigned char *a, const unsigned char *b, size
         shown++;
     }
     DBL_FIELD(time, "time") DBL_FIELD(start_time, "start_time") DBL_FIELD(last_good_time, "last_good_time")
-    ARR_FIELD(x, CEDRA_NX) ARR_FIELD(inp, CEDRA_NI) ARR_FIELD(par, CEDRA_NP) ARR_FIELD(y, CEDRA_NY)
-    ARR_FIELD(q_start, CEDRA_NQ) ARR_FIELD(u_start, CEDRA_NQ)
-    INT_FIELD(settle) INT_FIELD(solver.method) DBL_FIELD(solver.tol, "solver.tol")
-    DBL_FIELD(solver.h_max, "solver.h_max") INT_FIELD(stats.steps) INT_FIELD(stats.rejected)
-    INT_FIELD(stats.rhs_evals) INT_FIELD(stats.jac_evals) DBL_FIELD(stats.h_next, "stats.h_next")
+    ARR_FIELD(inp, "inp", CEDRA_NI) ARR_FIELD(par, "par", CEDRA_NP) ARR_FIELD(y, "y", CEDRA_NY)
+#if CEDRA_CONTROLLER
+    ARR_FIELD(b.xd, "xd", CEDRA_ND) INT_FIELD(b.taken)
+#else
+    ARR_FIELD(b.x, "x", CEDRA_NX) ARR_FIELD(b.q_start, "q_start", CEDRA_NQ) ARR_FIELD(b.u_start, "u_start", CEDRA_NQ)
+    INT_FIELD(b.settle) INT_FIELD(b.tol_explicit) INT_FIELD(b.solver.method) DBL_FIELD(b.solver.tol, "solver.tol")
+    DBL_FIELD(b.solver.h_max, "solver.h_max") INT_FIELD(b.solver.max_steps)
+    DBL_FIELD(b.solver.max_wall, "solver.max_wall_time") INT_FIELD(b.stats.steps) INT_FIELD(b.stats.rejected)
+    INT_FIELD(b.stats.rhs_evals) INT_FIELD(b.stats.jac_evals) DBL_FIELD(b.stats.h_next, "stats.h_next")
+#endif
     if (!shown) snprintf(out, len, "padding bytes only");
 #undef INT_FIELD
 #undef DBL_FIELD
@@ -1317,6 +1307,17 @@ static int set_torques(fmi2Component c, double base) {
     return 0;
 }
 
+/* The leak and thread runs check memory and results, not speed: under valgrind a step is ~50 times slower and the
+ * product's default wall-clock budget per fmi2DoStep (solver.max_wall_time, 1 s) would discard it; these runs
+ * lift it to its maximum (the attempted-step budget still bounds every call). 0, or 1 if it cannot be set. */
+static int lift_wall_budget(fmi2Component c) {
+    const cedra_var *v = var_named("solver.max_wall_time");
+    if (!v) return 0;                                      /* the controller has no solver */
+    fmi2ValueReference vr = v->vr;
+    fmi2Real val = v->max;
+    return fmi2SetReal(c, &vr, 1, &val) != fmi2OK;
+}
+
 static int cycles_main(void) {
     fmi2CallbackFunctions cb = {quiet_logger, fuzz_calloc, free, NULL, NULL};
     const char *res = opt.nres ? opt.res[0] : NULL;
@@ -1339,6 +1340,10 @@ static int cycles_main(void) {
         }
         int stop_at = 4 - (int)(k % 5);   /* free the instance in different phases, the full cycle first */
         MUST(fmi2SetupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0));
+        if (lift_wall_budget(c)) {
+            printf("FAILED cycle %ld: setting solver.max_wall_time\n", k);
+            return 1;
+        }
         if (stop_at == 0) goto done;
         MUST(fmi2EnterInitializationMode(c));
         if (set_torques(c, 0.5 + 0.1 * (double)(k % 3))) {
@@ -1423,7 +1428,7 @@ static void *run_scenario(void *arg) {
     }
     fmi2FMUstate st = NULL;
     double t = 0.0;
-    if (fmi2SetupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0) != fmi2OK ||
+    if (fmi2SetupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0) != fmi2OK || lift_wall_budget(c) ||
         fmi2EnterInitializationMode(c) != fmi2OK || set_torques(c, 0.4 + 0.35 * sc->id) ||
         fmi2ExitInitializationMode(c) != fmi2OK) {
         snprintf(sc->why, sizeof sc->why, "initialization failed");
