@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-SPEED = 0.2                 # m/s
+SPEED = 0.15                # m/s (a careful traverse; at 0.2 m/s the drifts are 2.3 vs 5.9 cm)
 TRAVEL = 5.0                # m along the line: the drift is measured over this travel
-STOP_TIME = 30.0
+STOP_TIME = 37.0            # s: 5 m of travel at SPEED, and a little more
 STEP = 0.01
 K_OFFSET, K_OFFSET_I, K_HEADING = 0.25, 0.0, 0.35    # yaw rate = K_OFFSET d + K_OFFSET_I int(d) - K_HEADING e_yaw;
 # soft on purpose: without steered wheels (slope3d) the rover yaws by skid steering, whose yaw-rate response takes

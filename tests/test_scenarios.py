@@ -65,12 +65,11 @@ def test_bad_waypoint_input_fails_before_the_simulation(kw, message, tmp_path):
 
 
 def test_slope_traverse_holds_its_line(tmp_path):
-    """Over 5 m across the 10 degree slope: the controller's drift stays below 5 cm; equal torques drift more
-    than twice as far (measured: 2.3 cm against 5.9 cm)."""
-    s = scenario.load("slope_traverse").run(out_dir=str(tmp_path), build_dir=str(BUILD), stop_time=27.0,
-                                           quiet=True)
+    """Over 5 m across the 10 degree slope at the scenario's 0.15 m/s: the controller's drift stays below 5 cm;
+    equal torques drift three times as far or more (measured: 2.5 cm against 7.7 cm)."""
+    s = scenario.load("slope_traverse").run(out_dir=str(tmp_path), build_dir=str(BUILD), quiet=True)
     ctrl, plain = s["controller"], s["equal torques"]
     print(f"drift over 5 m: controller {100 * ctrl['drift']:.2f} cm, equal torques {100 * plain['drift']:.2f} cm")
     assert ctrl["travel"] >= 5.0 and plain["travel"] >= 5.0
     assert ctrl["drift"] < 0.05
-    assert plain["drift"] > 2 * ctrl["drift"]
+    assert plain["drift"] > 3 * ctrl["drift"]
