@@ -463,7 +463,7 @@ static int state_ok(instance *c, const char *fn, const cedra_state *st) {
     return 1;
 }
 
-static int all_finite(const double *v, int n) {
+int all_finite(const double *v, int n) {
     for (int i = 0; i < n; i++)
         if (!isfinite(v[i])) return 0;
     return 1;

@@ -70,6 +70,8 @@ void log_msg(instance *c, fmi2Status status, int cat, const char *fmt, ...);
 
 /* The smallest step the FMU resolves at time t: 1e-12 max(1, |t|) (the embedded solvers use the same). */
 double time_resolution(double t);
+/* 1 if all n values are finite */
+int all_finite(const double *v, int n);
 
 /* ---------------------------------------------------------------------------------- the block's side */
 

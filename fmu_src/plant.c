@@ -254,12 +254,6 @@ fmi2Status block_step(instance *c, double t, double h) {
 
 /* ------------------------------------------------------------------------------------------- FMU state */
 
-static int all_finite(const double *v, int n) {
-    for (int i = 0; i < n; i++)
-        if (!isfinite(v[i])) return 0;
-    return 1;
-}
-
 const char *block_state_problem(instance *c, const cedra_state *st, char *buf, size_t len) {
     const block_state *b = &st->b;
     if (!(b->settle == 0 || b->settle == 1) || !(b->tol_explicit == 0 || b->tol_explicit == 1))

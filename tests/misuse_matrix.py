@@ -19,6 +19,7 @@ from __future__ import annotations
 import ctypes as C
 import math
 import re
+import struct
 import sys
 from collections import Counter
 from dataclasses import dataclass
@@ -44,6 +45,19 @@ def unzipped(fmu_path) -> str:
     if key not in _UNZIPPED:
         _UNZIPPED[key] = str(extract(key))
     return _UNZIPPED[key]
+
+
+def fnv1a(data: bytes) -> int:
+    h = 1469598103934665603
+    for b in data:
+        h = ((h ^ b) * 1099511628211) & 0xFFFFFFFFFFFFFFFF
+    return h
+
+
+def with_checksum(blob: bytes) -> bytes:
+    """A serialized state with its checksum recomputed: the last member (uint64), FNV-1a over the bytes with it
+    zero (fmu_src/fmi2_glue.c, state_checksum)."""
+    return blob[:-8] + struct.pack("<Q", fnv1a(blob[:-8] + bytes(8)))
 
 
 def _u(vals):
@@ -429,15 +443,9 @@ def _state_cases() -> list[Case]:
             blob[k] = rng.randrange(256)
 
     def nan_time_with_checksum(blob):
-        from fmpy import __version__  # noqa: F401  (only to keep imports local and light)
-        import struct
         off = 4 + 4 + 64 + 4 + 4     # magic, size, guid, phase, padding: the time
         blob[off:off + 8] = struct.pack("<d", math.nan)
-        blob[-8:] = bytes(8)
-        h = 1469598103934665603
-        for b in blob:
-            h = ((h ^ b) * 1099511628211) & 0xFFFFFFFFFFFFFFFF
-        blob[-8:] = struct.pack("<Q", h)
+        blob[:] = with_checksum(bytes(blob))
 
     def state_null(fn):
         if fn == "fmi2GetFMUstate":

@@ -9,27 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cedra import checks
+from cedra import checks, scenario
 from cedra.controller import CONTROLLERS, controller_spec
 from cedra.cosim import DriveLoop
-from cedra.fmu import build_fmu
 from cedra.parameters import DEFAULTS
-from cedra.scene import load_shipped
 from cedra.simulate import run_bump
 
-REPO = Path(__file__).resolve().parents[1]
-_PATHS: dict[str, Path] = {}
+BUILD = Path(__file__).resolve().parents[1] / "build"
 
 
-def fmu(name, tmp_path_factory) -> Path:
-    if name not in _PATHS:
-        built = REPO / "build" / f"{name}.fmu"
-        if built.exists():
-            _PATHS[name] = built
-        else:
-            spec = controller_spec(CONTROLLERS[name]) if name in CONTROLLERS else load_shipped(name).spec()
-            _PATHS[name] = build_fmu(spec, tmp_path_factory.mktemp(name))
-    return _PATHS[name]
+def fmu(name, tmp_path_factory=None) -> Path:
+    """build/<name>.fmu (./build.sh made it; built there if missing)."""
+    return scenario.fmu(name, BUILD)
 
 
 def _wrap(a):
@@ -115,7 +106,7 @@ def test_the_masters_order_decides_which_measurement_a_sample_sees(tmp_path_fact
     runs = {}
     for order in ("plant-first", "jacobi"):
         loop = DriveLoop(fmu("bump2d", tmp_path_factory), fmu("drive2d", tmp_path_factory),
-                         controller_values={"ctrl.mode": 0}, order=order)
+                         controller_values={"ctrl.mode": 0}, convention=order)
         try:
             runs[order] = loop.run(1.0, 0.01, lambda t: {"cmd.v": 0.2}, record=["body.vx", "ctrl.v"])
         finally:

@@ -10,6 +10,7 @@ import struct
 import pytest
 
 from fmu_harness import Toy, toy_fmu
+from misuse_matrix import with_checksum
 
 DRIVE = {"F": 8.0}
 
@@ -32,19 +33,6 @@ def serialized(inst) -> bytes:
         return bytes(inst.slave.serializeFMUState(state))
     finally:
         inst.slave.freeFMUState(state)
-
-
-def fnv1a(data: bytes) -> int:
-    h = 1469598103934665603
-    for b in data:
-        h = ((h ^ b) * 1099511628211) & 0xFFFFFFFFFFFFFFFF
-    return h
-
-
-def with_checksum(blob: bytes) -> bytes:
-    """The serialized state's checksum is its last member (uint64, FNV-1a over the bytes with it zero)."""
-    body = blob[:-8] + bytes(8)
-    return blob[:-8] + struct.pack("<Q", fnv1a(body))
 
 
 def replace_double(blob: bytes, old: float, new: float) -> bytes:

@@ -9,25 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cedra import ssp
-from cedra.controller import CONTROLLERS, controller_spec
+from cedra import scenario, ssp
 from cedra.cosim import DriveLoop
-from cedra.fmu import build_fmu
-from cedra.scene import load_shipped
 
-REPO = Path(__file__).resolve().parents[1]
+BUILD = Path(__file__).resolve().parents[1] / "build"
 STOP, STEP = 4.0, 0.01
 
 
 @pytest.fixture(scope="module")
 def system(tmp_path_factory):
-    """turn_flat: flat3d + drive3d turning at 0.2 m/s, 0.3 rad/s (build/ when built, else built here)."""
+    """turn_flat: flat3d + drive3d turning at 0.2 m/s, 0.3 rad/s."""
     plant_name, ctrl_name, pv, cv = ssp.SYSTEMS["turn_flat"]
-    paths = {}
-    for name in (plant_name, ctrl_name):
-        built = REPO / "build" / f"{name}.fmu"
-        spec = controller_spec(CONTROLLERS[name]) if name in CONTROLLERS else load_shipped(name).spec()
-        paths[name] = built if built.exists() else build_fmu(spec, tmp_path_factory.mktemp(name))
+    paths = {name: scenario.fmu(name, BUILD) for name in (plant_name, ctrl_name)}
     out = tmp_path_factory.mktemp("ssp") / "turn_flat.ssp"
     return ssp.write_ssp(out, paths[plant_name], paths[ctrl_name], pv, cv, stop_time=STOP), paths, pv, cv
 
@@ -63,7 +56,7 @@ def test_masters_run_the_package_and_the_project_master_reproduces_each(system):
     runs = {"fmpy-ssp": ssp.run_fmpy(path, STOP, STEP), "libcosim": ssp.run_libcosim(path, STOP, STEP)}
     xy = {}
     for convention, ref in runs.items():
-        loop = DriveLoop(paths["flat3d"], paths["drive3d"], pv, cv, order=convention)
+        loop = DriveLoop(paths["flat3d"], paths["drive3d"], pv, cv, convention=convention)
         try:
             r = loop.run(STOP, STEP, record=["body.x", "body.y"])
         finally:

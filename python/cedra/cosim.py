@@ -23,7 +23,7 @@ import numpy as np
 
 from .driver import RoverFMU
 
-ORDERS = ("plant-first", "jacobi", "fmpy-ssp", "libcosim")
+CONVENTIONS = ("plant-first", "jacobi", "fmpy-ssp", "libcosim")
 
 
 @dataclass
@@ -42,12 +42,12 @@ class DriveLoop:
     """plant + controller; `commands(t)` gives the controller's command inputs (cmd.v, cmd.yaw_rate) at t."""
 
     def __init__(self, plant_fmu, controller_fmu, plant_values: dict | None = None,
-                 controller_values: dict | None = None, order: str = "plant-first"):
-        if order not in ORDERS:
-            raise ValueError(f"convention {order!r}: one of {', '.join(ORDERS)}")
+                 controller_values: dict | None = None, convention: str = "plant-first"):
+        if convention not in CONVENTIONS:
+            raise ValueError(f"convention {convention!r}: one of {', '.join(CONVENTIONS)}")
         self.plant, self.ctrl = RoverFMU(plant_fmu, "plant"), RoverFMU(controller_fmu, "controller")
         self.plant_values, self.controller_values = dict(plant_values or {}), dict(controller_values or {})
-        self.order = order
+        self.convention = convention
         inputs = lambda f: {n for n, v in f.vars.items() if v.causality == "input"}      # noqa: E731
         outputs = lambda f: {n for n, v in f.vars.items() if v.causality == "output"}    # noqa: E731
         self.measured = sorted(outputs(self.plant) & inputs(self.ctrl))     # plant -> controller
@@ -73,13 +73,13 @@ class DriveLoop:
 
     def _times(self, stop_time: float, dt: float) -> list[float]:
         """The communication points as the convention's master computes them."""
-        if self.order == "fmpy-ssp":      # `while time < stop_time: ... time += step_size`
+        if self.convention == "fmpy-ssp":      # `while time < stop_time: ... time += step_size`
             ts = [0.0]
             while ts[-1] < stop_time:
                 ts.append(ts[-1] + dt)
             return ts
         n = int(round(stop_time / dt))
-        if self.order == "libcosim":
+        if self.convention == "libcosim":
             ns = round(dt * 1e9)
             return [k * ns / 1e9 for k in range(n + 1)]
         return [k * dt for k in range(n + 1)]
@@ -91,11 +91,11 @@ class DriveLoop:
         self.ctrl.set(self.controller_values)
         self._commands(0.0, commands)
         self.ctrl.fmu.enterInitializationMode()
-        if self.order != "fmpy-ssp":                      # sample 0 from the plant's settled start
+        if self.convention != "fmpy-ssp":                      # sample 0 from the plant's settled start
             self._measure()
         self.ctrl.fmu.exitInitializationMode()
         self.ctrl.time = self.plant.time = 0.0
-        if self.order == "fmpy-ssp":                      # every connection starts at 0
+        if self.convention == "fmpy-ssp":                      # every connection starts at 0
             self.ctrl.set({n: 0.0 for n in self.measured})
             self.plant.set({n: 0.0 for n in self.commanded})
         else:
@@ -115,8 +115,8 @@ class DriveLoop:
             rows.append(np.concatenate([[ts[k]], self._values(record)]))
             if k == n:
                 break
-            h = ts[k + 1] - ts[k] if self.order != "fmpy-ssp" else dt
-            if self.order == "plant-first":
+            h = ts[k + 1] - ts[k] if self.convention != "fmpy-ssp" else dt
+            if self.convention == "plant-first":
                 ok = self._step(self.plant, ts[k], h)
                 if ok:
                     self._measure()
