@@ -72,7 +72,7 @@ class PurePursuit:
 def run(out_dir="out/hills_waypoints", build_dir="build", stop_time=None, quiet=False, waypoints=None,
         speed=None) -> dict:
     from cedra.cosim import DriveLoop
-    from cedra.scenario import Progress, fmu, write_csv
+    from cedra.scenario import fmu, run_loop, write_csv
     global SPEED
     waypoints = WAYPOINTS if waypoints is None else waypoints
     SPEED = SPEED if speed is None else speed
@@ -80,14 +80,7 @@ def run(out_dir="out/hills_waypoints", build_dir="build", stop_time=None, quiet=
     stop_time = stop_time or STOP_TIME
     loop = DriveLoop(fmu("hills3d", build_dir), fmu("drive3d", build_dir))
     pursuit = PurePursuit(loop, waypoints)
-    progress = Progress(stop_time, "hills_waypoints", quiet)
-    try:
-        r = loop.run(stop_time, STEP, pursuit, RECORD, progress)
-    finally:
-        progress.done()
-        loop.close()
-    if not r.ok:
-        raise RuntimeError("hills_waypoints stopped early: " + "; ".join(r.messages[-2:]))
+    r = run_loop(loop, "hills_waypoints", stop_time, STEP, pursuit, RECORD, quiet)
     out = Path(out_dir)
     write_csv(out / "hills_waypoints.csv", r.names, r.rows)
     summary = dict(reached=pursuit.k, closest=[float(c) for c in pursuit.closest], wall=r.wall,

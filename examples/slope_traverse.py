@@ -42,7 +42,7 @@ class LineHolder:
 
 def run(out_dir="out/slope_traverse", build_dir="build", stop_time=None, quiet=False) -> dict:
     from cedra.cosim import DriveLoop
-    from cedra.scenario import Progress, fmu, write_csv
+    from cedra.scenario import fmu, run_loop, write_csv
     stop_time = stop_time or STOP_TIME
     out = Path(out_dir)
     start = {"start.yaw": HEADING}
@@ -51,14 +51,7 @@ def run(out_dir="out/slope_traverse", build_dir="build", stop_time=None, quiet=F
         loop = DriveLoop(fmu("slope3d", build_dir), fmu("drive3d", build_dir), plant_values=start,
                          controller_values={"ctrl.mode": mode})
         commands = LineHolder(loop, 0.0) if mode == 1 else (lambda t: {"cmd.v": SPEED, "cmd.yaw_rate": 0.0})
-        progress = Progress(stop_time, f"slope_traverse ({label})", quiet)
-        try:
-            r = loop.run(stop_time, STEP, commands, RECORD, progress)
-        finally:
-            progress.done()
-            loop.close()
-        if not r.ok:
-            raise RuntimeError(f"slope_traverse ({label}) stopped early: " + "; ".join(r.messages[-2:]))
+        r = run_loop(loop, f"slope_traverse ({label})", stop_time, STEP, commands, RECORD, quiet)
         write_csv(out / f"{label.replace(' ', '_')}.csv", r.names, r.rows)
         runs[label] = r
         y = r.column("body.y")

@@ -24,20 +24,13 @@ RECORD = (["body.x"] + [f"wheel[{i}].{q}" for i in WHEELS for q in ("slip", "Fn"
 
 def run(out_dir="out/step_climb", build_dir="build", stop_time=None, quiet=False) -> dict:
     from cedra.cosim import DriveLoop
-    from cedra.scenario import Progress, fmu, write_csv
+    from cedra.scenario import fmu, run_loop, write_csv
     stop_time = stop_time or STOP_TIME
     out = Path(out_dir)
     runs, summary = {}, {}
     for label, mode in MODES.items():
         loop = DriveLoop(fmu("bump2d", build_dir), fmu("drive2d", build_dir), controller_values={"ctrl.mode": mode})
-        progress = Progress(stop_time, f"step_climb ({label})", quiet)
-        try:
-            r = loop.run(stop_time, STEP, lambda t: {"cmd.v": SPEED}, RECORD, progress)
-        finally:
-            progress.done()
-            loop.close()
-        if not r.ok:
-            raise RuntimeError(f"step_climb ({label}) stopped early: " + "; ".join(r.messages[-2:]))
+        r = run_loop(loop, f"step_climb ({label})", stop_time, STEP, lambda t: {"cmd.v": SPEED}, RECORD, quiet)
         write_csv(out / f"{label.replace(' ', '_')}.csv", r.names, r.rows)
         runs[label] = r
         fn = np.array([r.column(f"wheel[{i}].Fn") for i in WHEELS])

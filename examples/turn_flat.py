@@ -22,17 +22,11 @@ RECORD = (["body.x", "body.y", "body.yaw", "body.vx", "body.vy", "body.wz", "ste
 
 def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False) -> dict:
     from cedra.cosim import DriveLoop
-    from cedra.scenario import Progress, fmu, write_csv
+    from cedra.scenario import fmu, run_loop, write_csv
     stop_time = stop_time or STOP_TIME
     loop = DriveLoop(fmu("flat3d", build_dir), fmu("drive3d", build_dir))
-    progress = Progress(stop_time, "turn_flat", quiet)
-    try:
-        r = loop.run(stop_time, STEP, lambda t: {"cmd.v": SPEED, "cmd.yaw_rate": YAW_RATE}, RECORD, progress)
-    finally:
-        progress.done()
-        loop.close()
-    if not r.ok:
-        raise RuntimeError("turn_flat stopped early: " + "; ".join(r.messages[-2:]))
+    r = run_loop(loop, "turn_flat", stop_time, STEP, lambda t: {"cmd.v": SPEED, "cmd.yaw_rate": YAW_RATE}, RECORD,
+                 quiet)
     out = Path(out_dir)
     write_csv(out / "turn_flat.csv", r.names, r.rows)
     t = r.column("time")

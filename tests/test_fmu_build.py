@@ -13,13 +13,8 @@ from fmpy.validation import validate_fmu
 
 from cedra import fmu as fmu_mod
 from cedra.variables import variables
-from fmu_harness import Toy, toy_fmu
+from fmu_harness import Toy
 from toy_model import toy_spec
-
-
-@pytest.fixture(scope="session")
-def toy(tmp_path_factory):
-    return toy_fmu(tmp_path_factory)
 
 
 def test_fmpy_validate_finds_no_problems(toy):

@@ -7,19 +7,7 @@ import math
 
 import pytest
 
-from fmu_harness import Toy, toy_fmu
-
-
-@pytest.fixture(scope="session")
-def toy(tmp_path_factory):
-    return toy_fmu(tmp_path_factory)
-
-
-@pytest.fixture
-def inst(toy):
-    t = Toy(toy)
-    yield t
-    t.close()
+from fmu_harness import Toy
 
 
 DRIVE = {"F": 8.0}          # above the friction limit mu m g = 4.9 N: the mass slides

@@ -9,22 +9,10 @@ import struct
 
 import pytest
 
-from fmu_harness import Toy, toy_fmu
+from fmu_harness import Toy
 from misuse_matrix import with_checksum
 
 DRIVE = {"F": 8.0}
-
-
-@pytest.fixture(scope="session")
-def toy(tmp_path_factory):
-    return toy_fmu(tmp_path_factory)
-
-
-@pytest.fixture
-def inst(toy):
-    t = Toy(toy)
-    yield t
-    t.close()
 
 
 def serialized(inst) -> bytes:

@@ -5,15 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fmu_harness import Toy, toy_fmu
+from fmu_harness import Toy
 
 NAMES = ("pos.x", "pos.z", "vel.x", "vel.z", "Fn", "energy.work")
 DRIVE = {"F": 8.0, "start.speed.z": -0.05}
-
-
-@pytest.fixture(scope="session")
-def toy(tmp_path_factory):
-    return toy_fmu(tmp_path_factory)
 
 
 def _run(toy, settings, t_end=0.5, h=0.01):

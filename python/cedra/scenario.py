@@ -71,6 +71,20 @@ class Progress:
             sys.stderr.write("\n")
 
 
+def run_loop(loop, label: str, stop_time: float, step: float, commands, record, quiet: bool = False):
+    """loop.run with a progress bar; the loop is closed afterwards; RuntimeError with the FMUs' last messages if the
+    run stopped early. Returns the LoopResult."""
+    progress = Progress(stop_time, label, quiet)
+    try:
+        r = loop.run(stop_time, step, commands, record, progress)
+    finally:
+        progress.done()
+        loop.close()
+    if not r.ok:
+        raise RuntimeError(f"{label} stopped early: " + "; ".join(r.messages[-2:]))
+    return r
+
+
 def write_csv(path, names, rows) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
