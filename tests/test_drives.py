@@ -14,8 +14,9 @@ import pytest
 from cedra import scene as sc
 from cedra.driver import RoverFMU
 from cedra.fmu import build_fmu
-from cedra.model import CedraModel, ModelOptions
+from cedra.model import ModelOptions
 from cedra.rover import IDX
+from model_harness import Built
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples"))
@@ -29,21 +30,8 @@ def applied_torque(cmd, omega, stall, noload, viscous):
     return np.clip(cmd, -stall * (1 + omega / noload), stall * (1 - omega / noload)) - viscous * omega
 
 
-class Functions:
-    """A model's numeric contract functions with named access to outputs."""
-
-    def __init__(self, opt):
-        self.m = CedraModel(opt)
-        self.fns = self.m.functions()
-        self.out_names = [o.name for o in self.m.spec("test").outputs]
-
-    def f(self, q, u, inp, par):
-        f, g = self.fns["cedra_f"](q, u, inp, par)
-        return np.array(f).ravel(), float(g)
-
-    def out(self, q, u, inp, par):
-        y = np.array(self.fns["cedra_out"](q, u, 0, inp, par)).ravel()
-        return dict(zip(self.out_names, y))
+class Functions(Built):
+    """A model's numeric contract functions with named access to outputs, and the wheels' spin rates."""
 
     def spin_rates(self, u):
         """The six wheels' spin rates relative to their carriers for scene speeds u (2D: 1 = 3, 2 = 4)."""

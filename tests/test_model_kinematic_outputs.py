@@ -7,25 +7,25 @@ import numpy as np
 import pytest
 
 from cedra import kinematics as kin
-from cedra.model import XI_SPEED, CedraModel, ModelOptions
+from cedra.model import XI_SPEED, ModelOptions
 from cedra.parameters import DEFAULTS
 from cedra.transforms import rot_x, rot_y, rot_z
+from model_harness import Built
 
 D = DEFAULTS
 RNG = np.random.default_rng(10)
 
 
-class Outputs:
+class Outputs(Built):
+    """Built's outputs at the model's default inputs and parameters (unless given)."""
+
     def __init__(self, opt):
-        self.m = CedraModel(opt)
-        self.fn = self.m.functions()["cedra_out"]
-        self.names = [o.name for o, _ in self.m.outputs()]
+        super().__init__(opt)
         self.par = self.m.default_par()
         self.inp = self.m.default_inp()
 
     def __call__(self, q, u, inp=None):
-        y = np.array(self.fn(q, u, 0, self.inp if inp is None else inp, self.par)).ravel()
-        return dict(zip(self.names, y))
+        return self.out(q, u, self.inp if inp is None else inp, self.par)
 
     def q(self, **values):
         q = np.zeros(len(self.m.q_names))

@@ -1,0 +1,58 @@
+"""Test harness for the symbolic model: a scene's contract functions evaluated numerically, by name."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from cedra.model import CedraModel
+
+
+class Built:
+    """A model with its numeric functions (built once per module)."""
+
+    def __init__(self, opt):
+        self.m = CedraModel(opt)
+        self.fns = self.m.functions()
+        self.names = self.m.q_names
+        self.n = len(self.names)
+        self.spec = self.m.spec("test")
+        self.out_names = [o.name for o in self.spec.outputs]
+
+    def M(self, q, par):
+        return np.array(self.fns["cedra_M"](q, par))
+
+    def f(self, q, u, inp, par):
+        f, g = self.fns["cedra_f"](q, u, inp, par)
+        return np.array(f).ravel(), float(g)
+
+    def out(self, q, u, inp, par):
+        y = np.array(self.fns["cedra_out"](q, u, 0, inp, par)).ravel()
+        return dict(zip(self.out_names, y))
+
+    def settle(self, inp, par, q=None):
+        """cedra_guess, then Newton on cedra_settle (as the FMU's initialization does)."""
+        q = np.array(self.spec.q_start if q is None else q, dtype=float)
+        q = np.array(self.fns["cedra_guess"](q, inp, par)).ravel()
+        idx = self.m.settle_idx
+        for _ in range(40):
+            r, J = self.fns["cedra_settle"](q, inp, par)
+            dq = np.linalg.solve(np.array(J), np.array(r).ravel())
+            q[idx] -= dq
+            if np.max(np.abs(dq)) < 1e-15:
+                break
+        r, _ = self.fns["cedra_settle"](q, inp, par)
+        assert np.max(np.abs(np.array(r))) < 1e-9
+        return q
+
+    def integrate(self, q0, u0, inp, par, t_end, n_out):
+        """x = [q, u], xdot = [u, solve(M, f)] by CasADi's cvodes at rtol = atol = 1e-10; returns (t, X)."""
+        x = ca.MX.sym("x", 2 * self.n)
+        q, u = x[:self.n], x[self.n:]
+        M = self.fns["cedra_M"](q, par)
+        f = self.fns["cedra_f"](q, u, inp, par)[0]
+        ode = ca.vertcat(u, ca.solve(M, f))
+        t = np.linspace(0, t_end, n_out + 1)
+        I = ca.integrator("I", "cvodes", {"x": x, "ode": ode}, 0, t[1:],
+                          {"reltol": 1e-10, "abstol": 1e-10, "max_num_steps": 200000})
+        X = np.array(I(x0=np.concatenate([q0, u0]))["xf"])
+        return t, np.hstack([np.concatenate([q0, u0])[:, None], X])
