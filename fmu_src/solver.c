@@ -224,6 +224,58 @@ static const double ro_c61 = 0.8083246795921522e+01, ro_c62 = -0.798113298806489
                     ro_c65 = -0.6058818238834054e+01;
 
 
+/* The stage system (I/(h gamma) - J) k = r. With the second-order structure (n2 > 0) the Jacobian is
+ * [[0, I, 0], [A, B, 0], [C, D, 0]] (x = [q, u, z]), and with c = 1/(h gamma) the rows read
+ *   c kq - ku = rq,   -A kq + (c - B) ku = ru,   -C kq - D ku + c kz = rz,
+ * so kq = (rq + ku)/c and the u rows become the n2 x n2 system S ku = c ru + A rq with S = c^2 I - c B - A (the
+ * Schur complement of the q block), then kz = (rz + C kq + D ku)/c. One LU of n2 x n2 instead of n x n (2D rover:
+ * 9 instead of 19, 3D: 15 instead of 31), and the solves shrink likewise. */
+size_t solver_stage_work_size(int n, int n2) {
+    return n2 > 0 ? (size_t)n2 * (size_t)n2 + (size_t)n : (size_t)n * (size_t)n;
+}
+
+int solver_stage_factor(int n, int n2, double fac, const double *J, double *work, int *piv) {
+    if (n2 <= 0) {
+        for (size_t k = 0; k < (size_t)n * n; k++) work[k] = -J[k];
+        for (int i = 0; i < n; i++) work[i + (size_t)i * n] += fac;
+        return linalg_lu_factor(n, work, piv);
+    }
+    double *S = work;
+    for (int j = 0; j < n2; j++)
+        for (int i = 0; i < n2; i++) {
+            double a = J[(size_t)(n2 + i) + (size_t)j * n], b = J[(size_t)(n2 + i) + (size_t)(n2 + j) * n];
+            S[i + (size_t)j * n2] = -fac * b - a + (i == j ? fac * fac : 0.0);
+        }
+    return linalg_lu_factor(n2, S, piv);
+}
+
+void solver_stage_solve(int n, int n2, double fac, const double *J, double *work, const int *piv, double *r) {
+    if (n2 <= 0) {
+        linalg_lu_solve(n, work, piv, r);
+        return;
+    }
+    const double *S = work;
+    double *rq = r, *ru = r + n2, *rz = r + 2 * n2, *t = work + (size_t)n2 * n2;
+    const int nz = n - 2 * n2;
+    for (int i = 0; i < n2; i++) t[i] = fac * ru[i];
+    for (int j = 0; j < n2; j++) {                                  /* + A rq, column by column */
+        const double *col = J + (size_t)j * n + n2;
+        double rj = rq[j];
+        if (rj == 0.0) continue;
+        for (int i = 0; i < n2; i++) t[i] += col[i] * rj;
+    }
+    linalg_lu_solve(n2, S, piv, t);                                 /* ku */
+    for (int i = 0; i < n2; i++) {
+        rq[i] = (rq[i] + t[i]) / fac;                               /* kq */
+        ru[i] = t[i];
+    }
+    for (int i = 0; i < nz; i++) {
+        double acc = rz[i];
+        for (int j = 0; j < 2 * n2; j++) acc += J[(size_t)(2 * n2 + i) + (size_t)j * n] * r[j];
+        rz[i] = acc / fac;                                          /* kz */
+    }
+}
+
 /* RODAS4 layout: f0, ft, k1..k6, y (stage state, then the embedded solution), dy (stage F, then xnew); J; W.
  * The error estimate is k6 = xnew - x_embedded. */
 #define RO_F0(w, n) (w)
@@ -254,51 +306,49 @@ static int rodas4_start(int n, const double *x, double t, double tmax, solver_rh
     return EV_OK;
 }
 
-static int rodas4_step(int n, const double *x, double t, double h, double tend, solver_rhs_fn rhs, void *ctx,
-                       double *w, solver_stats *st) {
+static int rodas4_step(int n, int n2, const double *x, double t, double h, double tend, solver_rhs_fn rhs,
+                       void *ctx, double *w, solver_stats *st) {
     double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *k1 = RO_K(w, n, 1), *k2 = RO_K(w, n, 2), *k3 = RO_K(w, n, 3),
            *k4 = RO_K(w, n, 4), *k5 = RO_K(w, n, 5), *k6 = RO_K(w, n, 6), *y = RO_Y(w, n), *dy = RO_XNEW(w, n),
            *J = RO_J(w, n), *W = RO_W(w, n);
     int piv[n];   /* VLA: work holds doubles only, and n is a few dozen at most */
     int ev;
-    /* W = I/(h*gamma) - J, factored once and used for all six stages */
+    /* W = I/(h*gamma) - J, factored once (reduced to n2 x n2 with the second-order structure) for all six stages */
     const double fac = 1.0 / (h * ro_gamma);
-    for (size_t k = 0; k < (size_t)n * n; k++) W[k] = -J[k];
-    for (int i = 0; i < n; i++) W[i + (size_t)i * n] += fac;
-    if (linalg_lu_factor(n, W, piv)) return EV_SINGULAR;
+    if (solver_stage_factor(n, n2, fac, J, W, piv)) return EV_SINGULAR;
 
     for (int i = 0; i < n; i++) k1[i] = f0[i] + h * ro_d1 * ft[i];
-    linalg_lu_solve(n, W, piv, k1);
+    solver_stage_solve(n, n2, fac, J, W, piv, k1);
 
     for (int i = 0; i < n; i++) y[i] = x[i] + ro_a21 * k1[i];
     if ((ev = eval(rhs, ctx, t + ro_c2 * h, y, dy, n, st))) return ev;
     for (int i = 0; i < n; i++) k2[i] = dy[i] + h * ro_d2 * ft[i] + ro_c21 * k1[i] / h;
-    linalg_lu_solve(n, W, piv, k2);
+    solver_stage_solve(n, n2, fac, J, W, piv, k2);
 
     for (int i = 0; i < n; i++) y[i] = x[i] + ro_a31 * k1[i] + ro_a32 * k2[i];
     if ((ev = eval(rhs, ctx, t + ro_c3 * h, y, dy, n, st))) return ev;
     for (int i = 0; i < n; i++) k3[i] = dy[i] + h * ro_d3 * ft[i] + (ro_c31 * k1[i] + ro_c32 * k2[i]) / h;
-    linalg_lu_solve(n, W, piv, k3);
+    solver_stage_solve(n, n2, fac, J, W, piv, k3);
 
     for (int i = 0; i < n; i++) y[i] = x[i] + ro_a41 * k1[i] + ro_a42 * k2[i] + ro_a43 * k3[i];
     if ((ev = eval(rhs, ctx, t + ro_c4 * h, y, dy, n, st))) return ev;
     for (int i = 0; i < n; i++)
         k4[i] = dy[i] + h * ro_d4 * ft[i] + (ro_c41 * k1[i] + ro_c42 * k2[i] + ro_c43 * k3[i]) / h;
-    linalg_lu_solve(n, W, piv, k4);
+    solver_stage_solve(n, n2, fac, J, W, piv, k4);
 
     /* stages 5 and 6 sit at t+h with d5 = d6 = 0 (rodas.f passes HD = 0) */
     for (int i = 0; i < n; i++) y[i] = x[i] + ro_a51 * k1[i] + ro_a52 * k2[i] + ro_a53 * k3[i] + ro_a54 * k4[i];
     if ((ev = eval(rhs, ctx, tend, y, dy, n, st))) return ev;
     for (int i = 0; i < n; i++)
         k5[i] = dy[i] + (ro_c51 * k1[i] + ro_c52 * k2[i] + ro_c53 * k3[i] + ro_c54 * k4[i]) / h;
-    linalg_lu_solve(n, W, piv, k5);
+    solver_stage_solve(n, n2, fac, J, W, piv, k5);
 
     for (int i = 0; i < n; i++) y[i] += k5[i];   /* the embedded order-3 solution */
     if (!all_finite(n, y)) return EV_NONFINITE;
     if ((ev = eval(rhs, ctx, tend, y, dy, n, st))) return ev;
     for (int i = 0; i < n; i++)
         k6[i] = dy[i] + (ro_c61 * k1[i] + ro_c62 * k2[i] + ro_c63 * k3[i] + ro_c64 * k4[i] + ro_c65 * k5[i]) / h;
-    linalg_lu_solve(n, W, piv, k6);
+    solver_stage_solve(n, n2, fac, J, W, piv, k6);
 
     for (int i = 0; i < n; i++) dy[i] = y[i] + k6[i];   /* dy becomes xnew */
     return all_finite(n, dy) ? EV_OK : EV_NONFINITE;
@@ -323,9 +373,9 @@ static double initial_step(int n, const double *x, double t, const double *f0, d
     return fmin(fmin(100 * h, h1), hmax);
 }
 
-static int adaptive(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
-                    solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx, double *w,
-                    solver_stats *st, char *msg, size_t msg_len) {
+static int adaptive(const solver_settings *s, int n, int n2, double *x, double t0, double t1, solver_rhs_fn rhs,
+                    solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate, solver_post_fn post,
+                    void *ctx, double *w, solver_stats *st, char *msg, size_t msg_len) {
     const int dopri = s->method == SOLVER_DOPRI5;
     const char *name = dopri ? "dopri5" : "rodas4";
     /* The error estimate is O(h^(q+1)), q the lower of the two orders: 4 for DOPRI5, 3 for RODAS4. */
@@ -338,6 +388,10 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
     double t = t0, h, facold = 1e-4;
     const double start = wall_now();
     int have_start = 0, fails = 0, rejected_last = 0, last_ev = -1;
+    /* a step cut at a switch (locate): retried with exactly that length (located), and the proposal before the
+     * cut (h_uncut) is restored after it is accepted, so that a switch costs no slow regrowth of h */
+    int located = 0;
+    double h_uncut = 0;
     long attempts = 0;
 
     if (st->h_next > 0 && isfinite(st->h_next)) {
@@ -360,6 +414,8 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
         if (rem <= hprop * (1 + 1e-9)) {
             hs = rem;
             last = 1;
+        } else if (located) {
+            hs = hprop;
         } else if (rem < 2 * hprop) {
             hs = 0.5 * rem;
         } else {
@@ -380,7 +436,8 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
             have_start = ev == EV_OK;
         }
         if (ev == EV_OK)
-            ev = dopri ? dopri5_step(n, x, t, hs, tend, rhs, ctx, w, st) : rodas4_step(n, x, t, hs, tend, rhs, ctx, w, st);
+            ev = dopri ? dopri5_step(n, x, t, hs, tend, rhs, ctx, w, st)
+                       : rodas4_step(n, n2, x, t, hs, tend, rhs, ctx, w, st);
         double err = ev == EV_OK ? err_norm(n, tol, errv, x, xnew) : 0.0;
         if (ev == EV_OK && isnan(err)) ev = EV_NONFINITE;
 
@@ -396,6 +453,8 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
                 return 1;
             }
             h = hs * FAIL_SHRINK;
+            located = 0;
+            h_uncut = 0;
             if (h < hmin) goto underflow;
             continue;
         }
@@ -404,6 +463,8 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
             st->rejected++;
             rejected_last = 1;
             last_ev = 0;
+            located = 0;
+            h_uncut = 0;
             h = hs * fmax(FAC_SHRINK, SAFETY * pow(err, -expo));
             if (h < hmin) goto underflow;
             continue;
@@ -420,7 +481,25 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
                 rejected_last = 1;
                 last_ev = EV_EVENT;
                 h = hs * fmax(0.01, factor);
+                located = 0;
+                h_uncut = 0;
                 if (h < hmin) goto underflow;
+                continue;
+            }
+        }
+        if (locate) {
+            double len = locate(ctx, t, x, tend, xnew);
+            if (!(len >= 0)) {
+                put_msg(msg, msg_len, "%s: the switch location failed at t = %.15g", name, tend);
+                return 1;
+            }
+            if (len < (tend - t) * (1 - 1e-9)) {   /* a switch inside the step: retry ending at it */
+                st->rejected++;
+                rejected_last = 1;
+                last_ev = EV_EVENT;
+                h_uncut = fmax(h_uncut, hs);
+                located = 1;
+                h = fmax(len, hmin);
                 continue;
             }
         }
@@ -437,7 +516,10 @@ static int adaptive(const solver_settings *s, int n, double *x, double t0, doubl
         if (rejected_last && q < 1) q = 1;   /* no growth right after a rejection */
         double hnew = hs / q;
         /* a step shortened only to reach t1 (or to split the remainder) does not lower the proposal */
-        if (hs < hprop && q <= 1) hnew = fmax(hnew, hprop);
+        if (hs < hprop && q <= 1 && !located) hnew = fmax(hnew, hprop);
+        if (located) hnew = fmax(hnew, h_uncut);   /* a cut at a switch does not lower the proposal */
+        located = 0;
+        h_uncut = 0;
         h = fmin(hnew, hmax);
 
         memcpy(x, xnew, sizeof(double) * (size_t)n);
@@ -471,7 +553,27 @@ underflow:
 
 int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
                      solver_jac_fn jac, void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len) {
-    return solver_integrate_post(s, n, x, t0, t1, rhs, jac, NULL, NULL, ctx, work, stats, msg, msg_len);
+    return solver_integrate_post(s, n, x, t0, t1, rhs, jac, NULL, NULL, NULL, ctx, work, stats, msg, msg_len, 0);
+}
+
+double solver_locate_switches(int nsw, const double *s0, const double *s1, double t, double t_new, double loc_tol,
+                              int *which) {
+    const double len = t_new - t;
+    double first = HUGE_VAL;
+    if (which) *which = -1;
+    for (int i = 0; i < nsw; i++) {
+        if (!((s0[i] > 0 && s1[i] <= 0) || (s0[i] < 0 && s1[i] >= 0))) continue;
+        double at = len * s0[i] / (s0[i] - s1[i]);    /* linear interpolation of s over the step */
+        if (at < first) {
+            first = at;
+            if (which) *which = i;
+        }
+    }
+    /* (t + loc_tol) - t is loc_tol only up to rounding in t: a step of loc_tol is "at most loc_tol" */
+    if (first == HUGE_VAL || len <= loc_tol * (1 + 1e-6)) return len;
+    /* More than loc_tol ahead: end a quarter of loc_tol short of the estimate (the next step then starts within
+     * loc_tol of the switch, where the estimate is accurate); within loc_tol: a step of loc_tol crosses it. */
+    return first > loc_tol ? first - 0.25 * loc_tol : loc_tol;
 }
 
 double solver_time_resolution(double t) { return 1e-12 * fmax(1.0, fabs(t)); }
@@ -515,8 +617,8 @@ int solver_check(const solver_settings *s, double t0, double t1, char *msg, size
 }
 
 int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
-                          solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post, void *ctx,
-                          double *work, solver_stats *stats, char *msg, size_t msg_len) {
+                          solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate, solver_post_fn post,
+                          void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len, int n2) {
     if (solver_check(s, t0, t1, msg, msg_len)) return 1;
     if (s->method == SOLVER_RODAS4 && !jac) {
         put_msg(msg, msg_len, "rodas4: no Jacobian function");
@@ -524,5 +626,6 @@ int solver_integrate_post(const solver_settings *s, int n, double *x, double t0,
     }
     if (n <= 0 || t1 == t0) return 0;   /* nothing to integrate */
     if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, post, ctx, work, stats, msg, msg_len);
-    return adaptive(s, n, x, t0, t1, rhs, jac, accept, post, ctx, work, stats, msg, msg_len);
+    if (n2 < 0 || 2 * n2 > n) n2 = 0;
+    return adaptive(s, n, n2, x, t0, t1, rhs, jac, accept, locate, post, ctx, work, stats, msg, msg_len);
 }

@@ -25,6 +25,21 @@ typedef int (*solver_post_fn)(void *ctx, double t, double *x);
  * Negative on failure (the reason in the callback's context). RK4, a fixed-step method, does not call it. */
 typedef double (*solver_accept_fn)(void *ctx, double t, const double *x, double t_new, const double *x_new);
 
+/* Called by the adaptive methods after a step passed the error test and the accept callback: the length of the
+ * step to take instead when a switching function of the model changes sign inside the step (0 < len < t_new - t:
+ * the step is retried with exactly that length, so that it ends at the switch, and the cut does not lower the
+ * step-size proposal after it), or t_new - t (or more) to accept the step. Negative on failure.
+ * solver_locate_switches is the usual body of such a callback. */
+typedef double (*solver_locate_fn)(void *ctx, double t, const double *x, double t_new, const double *x_new);
+
+/* Locate the first sign change of nsw switching functions between s0 (at t) and s1 (at t_new): returns t_new - t
+ * if none changes sign or the step is at most loc_tol long (the crossing is then located within loc_tol);
+ * otherwise the length of the step to try instead: just short of the crossing (linear interpolation of s) when
+ * it lies more than loc_tol ahead, loc_tol when it lies within loc_tol. *which (if not NULL) = the index of that
+ * switch, or -1. A switch exactly 0 at t is not a crossing (the step starts on it). */
+double solver_locate_switches(int nsw, const double *s0, const double *s1, double t, double t_new, double loc_tol,
+                              int *which);
+
 typedef struct {
     int method;        /* enum solver_method */
     double tol;        /* relative and absolute tolerance of the adaptive methods */
@@ -58,9 +73,21 @@ size_t solver_workspace_size(int method, int n);
 int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1,
                      solver_rhs_fn rhs, solver_jac_fn jac, void *ctx,
                      double *work, solver_stats *stats, char *msg, size_t msg_len);
-/* the same, with a step-acceptance and a post-step callback (each NULL: none) */
+/* the same, with a step-acceptance, a switch-location and a post-step callback (each NULL: none), and the
+ * second-order structure of x (n2 > 0: x = [q (n2), u (n2), z (n - 2 n2)] with q' = u exactly and F independent of
+ * z, so the Jacobian is [[0, I, 0], [A, B, 0], [C, D, 0]]; RODAS4 then solves its stage systems with an n2 x n2
+ * Schur complement instead of the n x n matrix; n2 = 0: no structure known) */
 int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1,
-                          solver_rhs_fn rhs, solver_jac_fn jac, solver_accept_fn accept, solver_post_fn post,
-                          void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len);
+                          solver_rhs_fn rhs, solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate,
+                          solver_post_fn post, void *ctx, double *work, solver_stats *stats, char *msg,
+                          size_t msg_len, int n2);
+
+/* The RODAS4 stage system (I/(h gamma) - J) k = r with fac = 1/(h gamma), for the structure of
+ * solver_integrate_post (n2 > 0; n2 = 0: the dense n x n solve). work: solver_stage_work_size(n, n2) doubles,
+ * piv: n ints. Factor once (returns 1 if singular), then solve any number of right-hand sides in place.
+ * Exposed for the tests (the reduced solve equals the full one). */
+size_t solver_stage_work_size(int n, int n2);
+int solver_stage_factor(int n, int n2, double fac, const double *J, double *work, int *piv);
+void solver_stage_solve(int n, int n2, double fac, const double *J, double *work, const int *piv, double *r);
 
 #endif

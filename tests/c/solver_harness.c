@@ -101,3 +101,75 @@ int harness_lu_solve(int n, const double *a, double *b) {
     if (rc == 0) linalg_lu_solve(n, lu, piv, b);
     return rc;
 }
+
+/* ---- issue 13: the RODAS4 stage system with the second-order structure, and switch location ---- */
+
+/* Solve (fac I - J) x = b for n <= 64 twice: densely (out_full) and with the n2 x n2 Schur complement (out_red).
+ * Returns the two factorizations' codes, full * 2 + reduced. */
+int harness_stage_solve(int n, int n2, double fac, const double *J, const double *b, double *out_full,
+                        double *out_red) {
+    double work[64 * 64 + 64];
+    int piv[64];
+    if (n > 64 || n2 < 1 || 2 * n2 > n) return -1;
+    memcpy(out_full, b, sizeof(double) * (size_t)n);
+    memcpy(out_red, b, sizeof(double) * (size_t)n);
+    int rf = solver_stage_factor(n, 0, fac, J, work, piv);
+    if (rf == 0) solver_stage_solve(n, 0, fac, J, work, piv, out_full);
+    int rr = solver_stage_factor(n, n2, fac, J, work, piv);
+    if (rr == 0) solver_stage_solve(n, n2, fac, J, work, piv, out_red);
+    return rf * 2 + rr;
+}
+
+/* A ball dropped on a compliant ground: z' = v, v' = -g + max(0, -k z - d v) for z < 0 (the contact law's jump of
+ * d |v| at touchdown), with the switching function s = z. */
+typedef struct {
+    double g, k, d, loc_tol;
+    int located;
+    double t0, t1;          /* the first step that crossed the switch and was accepted */
+    long cuts;
+} ball_ctx;
+
+static int ball_rhs(void *vctx, double t, const double *x, double *f) {
+    ball_ctx *c = vctx;
+    (void)t;
+    f[0] = x[1];
+    f[1] = -c->g + (x[0] < 0 ? fmax(0.0, -c->k * x[0] - c->d * x[1]) : 0.0);
+    return 0;
+}
+
+static int ball_jac(void *vctx, double t, const double *x, const double *xdot, double *J) {
+    ball_ctx *c = vctx;
+    (void)t;
+    (void)xdot;
+    int on = x[0] < 0 && -c->k * x[0] - c->d * x[1] > 0;
+    J[0] = 0; J[1] = on ? -c->k : 0; J[2] = 1; J[3] = on ? -c->d : 0;
+    return 0;
+}
+
+static double ball_locate(void *vctx, double t, const double *x, double t_new, const double *x_new) {
+    ball_ctx *c = vctx;
+    int which;
+    double len = solver_locate_switches(1, &x[0], &x_new[0], t, t_new, c->loc_tol, &which);
+    if (which >= 0 && len >= t_new - t && !c->located) {
+        c->located = 1;
+        c->t0 = t;
+        c->t1 = t_new;
+    }
+    if (len < t_new - t) c->cuts++;
+    return len;
+}
+
+/* Drop from z0 (v = 0) over [0, t1]; with_locate 0: no location. out: located, t0, t1, cuts, steps, rejected, z, v */
+int harness_ball(int method, double tol, double h_max, double z0, double t_end, int with_locate, int n2,
+                 double *out, char *msg, int msg_len) {
+    ball_ctx c = {9.81, 1e5, 600, 1e-10, 0, 0, 0, 0};
+    solver_settings s = {method, tol, h_max, 1000000, 100.0};
+    solver_stats st = {0, 0, 0, 0, 0};
+    double x[2] = {z0, 0}, work[64];
+    if (solver_workspace_size(method, 2) > 64) return -1;
+    int rc = solver_integrate_post(&s, 2, x, 0, t_end, ball_rhs, ball_jac, NULL, with_locate ? ball_locate : NULL,
+                                   NULL, &c, work, &st, msg, (size_t)msg_len, n2);
+    out[0] = c.located; out[1] = c.t0; out[2] = c.t1; out[3] = (double)c.cuts;
+    out[4] = (double)st.steps; out[5] = (double)st.rejected; out[6] = x[0]; out[7] = x[1];
+    return rc;
+}

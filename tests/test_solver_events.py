@@ -1,0 +1,104 @@
+"""Issue 13, items 3 and 4 at the solver level (fmu_src/solver.c through tests/c/solver_harness.c):
+- the RODAS4 stage system solved with the n2 x n2 Schur complement of the second-order structure x = [q, u, z]
+  equals the dense n x n solve to 1e-12, on the rover's own Jacobians at random states (bump2d, flat3d);
+- a touchdown inside a step is located to 1e-9 s or better by the adaptive solvers with a switch-location
+  callback (solver_locate_switches): a ball dropped on the compliant contact law, whose force jumps by d |v| at
+  touchdown; without location no accepted step is that short around it."""
+import ctypes
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / "fmu_src"
+HARNESS = ROOT / "tests" / "c" / "solver_harness.c"
+CFLAGS = ["-std=c99", "-O2", "-fPIC", "-Wall", "-Wextra", "-Werror", "-pedantic"]
+DOPRI5, RODAS4 = 1, 2
+_D = ctypes.POINTER(ctypes.c_double)
+
+
+@pytest.fixture(scope="module")
+def lib(tmp_path_factory):
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        pytest.skip("gcc not available")
+    out = tmp_path_factory.mktemp("solver_events") / "libsolver_harness.so"
+    cmd = [gcc, *CFLAGS, "-shared", f"-I{SRC}", str(HARNESS), str(SRC / "solver.c"), str(SRC / "linalg.c"),
+           "-lm", "-o", str(out)]
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    assert res.returncode == 0 and res.stderr.strip() == "", f"gcc failed or warned:\n{res.stderr}"
+    so = ctypes.CDLL(str(out))
+    so.harness_stage_solve.restype = ctypes.c_int
+    so.harness_stage_solve.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_double, _D, _D, _D, _D]
+    so.harness_ball.restype = ctypes.c_int
+    so.harness_ball.argtypes = [ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_double,
+                                ctypes.c_int, ctypes.c_int, _D, ctypes.c_char_p, ctypes.c_int]
+    return so
+
+
+def _p(a):
+    return a.ctypes.data_as(_D)
+
+
+@pytest.mark.parametrize("scene", ["bump2d", "flat3d"])
+def test_reduced_stage_solve_equals_full_solve(lib, scene):
+    from cedra.reports.common import Problem
+    from cedra.scene import load_shipped
+    prob = Problem(load_shipped(scene))
+    q0 = prob.settle()
+    rng = np.random.default_rng(13)
+    nq, n = prob.nq, prob.nx
+    worst = 0.0
+    for k in range(8):
+        x = prob.x0(q0 + rng.normal(0, 2e-3, nq), rng.normal(0, 0.3, nq))
+        J = np.array(prob.jac(x, np.concatenate([prob.inp0, prob.par])))
+        # the structure the reduced solve relies on: q' = u, nothing depends on the integral state
+        assert np.array_equal(J[:nq, :], np.hstack([np.zeros((nq, nq)), np.eye(nq), np.zeros((nq, n - 2 * nq))]))
+        assert not J[:, 2 * nq:].any()
+        for h in (1e-6, 1e-4, 1e-2):
+            fac = 1.0 / (h * 0.25)        # RODAS4's gamma
+            b = rng.normal(0, 1, n)
+            full, red = np.empty(n), np.empty(n)
+            Jc = np.asfortranarray(J)
+            rc = lib.harness_stage_solve(n, nq, fac, _p(Jc.ravel(order="F")), _p(b), _p(full), _p(red))
+            assert rc == 0
+            ref = np.linalg.solve(fac * np.eye(n) - J, b)
+            err = np.max(np.abs(red - full)) / np.max(np.abs(full))
+            assert np.max(np.abs(full - ref)) / np.max(np.abs(ref)) <= 1e-12
+            assert err <= 1e-12, (scene, k, h, err)
+            worst = max(worst, err)
+    print(f"{scene}: reduced vs full stage solve, worst relative difference {worst:.2e}")
+
+
+def ball(lib, method, with_locate, z0=0.1, tol=1e-6, n2=0):
+    out = np.zeros(8)
+    msg = ctypes.create_string_buffer(300)
+    rc = lib.harness_ball(method, tol, 0.01, z0, 0.3, with_locate, n2, _p(out), msg, 300)
+    assert rc == 0, msg.value.decode()
+    return out
+
+
+@pytest.mark.parametrize("method", [DOPRI5, RODAS4])
+@pytest.mark.parametrize("n2", [0, 1])
+def test_touchdown_inside_a_step_is_located(lib, method, n2):
+    if method == DOPRI5 and n2:
+        pytest.skip("the structure is RODAS4's")
+    z0 = 0.1
+    t_touch = math.sqrt(2 * z0 / 9.81)          # free fall until z = 0
+    out = ball(lib, method, 1, z0, n2=n2)
+    located, t0, t1, cuts = out[0], out[1], out[2], out[3]
+    assert located == 1
+    assert t0 <= t_touch + 1e-12 and t_touch - 1e-12 <= t1, (t0, t_touch, t1)
+    assert t1 - t0 <= 1e-9, f"the step across the touchdown is {t1 - t0:.3g} s long"
+    assert cuts >= 1
+    # the located run and one without location agree on where the ball ends up within their tolerance, and
+    # the free fall before touchdown is exact up to the solver's error
+    free = ball(lib, method, 0, z0, n2=n2)
+    assert abs(out[6] - free[6]) < 1e-4
+    print(f"method {method}: touchdown at {t_touch:.12f} s located in [{t0:.12f}, {t1:.12f}] "
+          f"({t1 - t0:.2e} s), {int(cuts)} cuts, steps {int(out[4])} (rejected {int(out[5])}); without location: "
+          f"steps {int(free[4])} (rejected {int(free[5])})")
