@@ -11,6 +11,7 @@
 #include "heightmap.h"
 #include "linalg.h"
 #include "rigid.h"
+#include "solver.h"
 
 #define NQ CEDRA_NQ
 #define NZ CEDRA_NZ
@@ -29,6 +30,25 @@
 #define SZ_W MAX2(MAX2(MAX2(cedra_M_SZ_W, cedra_f_SZ_W), MAX2(cedra_rjac_SZ_W, cedra_out_SZ_W)), \
                   MAX2(MAX2(cedra_settle_SZ_W, cedra_guess_SZ_W), cedra_check_SZ_W))
 
+/* force-law switches (cedra_switch, generated when the model has switches) */
+#define NSW CEDRA_NSW
+#define NH CEDRA_NH
+#if NSW > 0
+#define SW_SZ_ARG MAX2(SZ_ARG, cedra_switch_SZ_ARG)
+#define SW_SZ_RES MAX2(SZ_RES, cedra_switch_SZ_RES)
+#define SW_SZ_IW MAX2(SZ_IW, cedra_switch_SZ_IW)
+#define SW_SZ_W MAX2(SZ_W, cedra_switch_SZ_W)
+#else
+#define SW_SZ_ARG SZ_ARG
+#define SW_SZ_RES SZ_RES
+#define SW_SZ_IW SZ_IW
+#define SW_SZ_W SZ_W
+#endif
+/* a switch is located when the step that crosses it is at most this long (s; more where time cannot resolve it) */
+#define LOC_TOL 1e-10
+#define MAX_LOCATE 4        /* locations of one switch per call (fmi2DoStep) before it is left to the error control */
+#define LOG_LOCATED 8       /* located switches kept for the step's log */
+
 #if CEDRA_RIGID
 #define NC CEDRA_NC
 #else
@@ -41,10 +61,17 @@
 
 struct model_ws {
     const double *inp, *par;
-    const casadi_real *arg[DIM(SZ_ARG)];
-    casadi_real *res[DIM(SZ_RES)];
-    casadi_int iw[DIM(SZ_IW)];
-    casadi_real w[DIM(SZ_W)];
+    const casadi_real *arg[DIM(SW_SZ_ARG)];
+    casadi_real *res[DIM(SW_SZ_RES)];
+    casadi_int iw[DIM(SW_SZ_IW)];
+    casadi_real w[DIM(SW_SZ_W)];
+    /* switch location: s and the held choices at the step's start (cached on (t, x)), s at its end */
+    double sw0[DIM(NSW)], sw1[DIM(NSW)], hold[DIM(NH)], hold_tmp[DIM(NH)], sw_t, sw_x[NX];
+    int sw_valid;
+    long n_located;                     /* switches located since the last model_take_located */
+    int sw_count[DIM(NSW)];             /* times each switch was located since then */
+    int loc_which[LOG_LOCATED];
+    double loc_t0[LOG_LOCATED], loc_t1[LOG_LOCATED];
     double M[NQ * NQ];
     int piv[NQ];
     double f[NQ], g[DIM(NZ)];
@@ -80,6 +107,7 @@ static int find_var(const char *name, int kind) {
 void model_bind(model_ws *ws, const double *inp, const double *par) {
     ws->inp = inp;
     ws->par = par;
+    ws->sw_valid = 0;       /* s at a step's start depends on the inputs: evaluate it again */
 #if CEDRA_RIGID
     ws->have_modes = 0;     /* the first evaluation decides the modes from the state */
     ws->i_mu = find_var("mu", CEDRA_K_INP);
@@ -285,6 +313,85 @@ double model_accept_step(void *ctx, double t, const double *x, double t_new, con
     (void)x_new;
     return 1;
 #endif
+}
+
+#if NSW > 0
+/* s (and the discrete choices the model makes now, into hold_now) at x, with the choices `hold` held */
+static int eval_switch(model_ws *ws, const double *x, const double *hold, double *s, double *hold_now) {
+    ws->arg[0] = x;
+    ws->arg[1] = x + NQ;
+    ws->arg[2] = ws->inp;
+    ws->arg[3] = ws->par;
+    ws->arg[4] = hold;
+    ws->res[0] = s;
+    ws->res[1] = hold_now;
+    if (cedra_switch(ws->arg, ws->res, ws->iw, ws->w, 0) || !all_finite(s, NSW)) {
+        snprintf(ws->msg, sizeof ws->msg, "cedra_switch failed or is not finite");
+        return 1;
+    }
+    return 0;
+}
+#endif
+
+double model_locate_step(void *ctx, double t, const double *x, double t_new, const double *x_new) {
+#if NSW > 0
+    model_ws *ws = (model_ws *)ctx;
+    const double loc_tol = fmax(LOC_TOL, 10 * solver_time_resolution(t_new));
+    activate(ws);
+    if (!ws->sw_valid || ws->sw_t != t || memcmp(ws->sw_x, x, sizeof ws->sw_x) != 0) {
+        /* the step's start: the model's choices there, held over the step, and s relative to them */
+        if (eval_switch(ws, x, ws->hold, ws->sw0, ws->hold_tmp)) return -1;
+        memcpy(ws->hold, ws->hold_tmp, sizeof ws->hold);
+        if (NH > 0 && eval_switch(ws, x, ws->hold, ws->sw0, ws->hold_tmp)) return -1;
+        ws->sw_t = t;
+        memcpy(ws->sw_x, x, sizeof ws->sw_x);
+        ws->sw_valid = 1;
+    }
+    if (eval_switch(ws, x_new, ws->hold, ws->sw1, ws->hold_tmp)) return -1;
+    /* A switch crossed back and forth (a force law sliding along its switch, e.g. a wheel that barely touches)
+     * would be located again and again: after MAX_LOCATE locations in one call it is left to the error control
+     * for the rest of the call. */
+    for (int i = 0; i < NSW; i++)
+        if (ws->sw_count[i] >= MAX_LOCATE) ws->sw1[i] = ws->sw0[i];
+    int which;
+    double len = solver_locate_switches(NSW, ws->sw0, ws->sw1, t, t_new, loc_tol, &which);
+    if (which >= 0 && len >= t_new - t) {      /* accepted with the switch inside: located */
+        int k = (int)(ws->n_located % LOG_LOCATED);
+        ws->loc_which[k] = which;
+        ws->loc_t0[k] = t;
+        ws->loc_t1[k] = t_new;
+        ws->n_located++;
+        ws->sw_count[which]++;
+    }
+    return len;
+#else
+    (void)ctx;
+    (void)t;
+    (void)x;
+    return t_new - t;
+#endif
+}
+
+long model_take_located(model_ws *ws, int k, const char **name, double *t0, double *t1) {
+    long n = ws->n_located;
+    if (k < 0) {
+        ws->n_located = 0;
+        memset(ws->sw_count, 0, sizeof ws->sw_count);
+        return n;
+    }
+#if NSW > 0
+    int j = (int)((n - 1 - k) % LOG_LOCATED);
+    if (name && t0 && t1 && k < n && k < LOG_LOCATED && j >= 0) {
+        *name = CEDRA_SW_NAMES[ws->loc_which[j]];
+        *t0 = ws->loc_t0[j];
+        *t1 = ws->loc_t1[j];
+    }
+#else
+    (void)name;
+    (void)t0;
+    (void)t1;
+#endif
+    return n;
 }
 
 int model_post_step(void *ctx, double t, double *x) {

@@ -24,6 +24,13 @@ int model_jac(void *ctx, double t, const double *x, const double *xdot, double *
 /* step-acceptance callback (solver.h): rigid contact touch-down location; accepts every step of compliant
  * models */
 double model_accept_step(void *ctx, double t, const double *x, double t_new, const double *x_new);
+/* switch-location callback (solver.h): cuts a step at the first force-law switch inside it (cedra_switch); accepts
+ * every step of a model without switches */
+double model_locate_step(void *ctx, double t, const double *x, double t_new, const double *x_new);
+/* the switches located since the last reset: k < 0 resets the count and returns it; k >= 0 returns the count and,
+ * for the k-th most recent of the last few kept, its name and the step [t0, t1] that crossed it (if the pointers
+ * are not NULL) */
+long model_take_located(model_ws *ws, int k, const char **name, double *t0, double *t1);
 /* post-step callback (solver.h): rigid contact projection; does nothing for compliant models */
 int model_post_step(void *ctx, double t, double *x);
 

@@ -12,6 +12,15 @@
 #define NQ CEDRA_NQ
 #define NZ CEDRA_NZ
 #define NX CEDRA_NX
+/* Switch location (issue 13 item 3) is built but OFF by default: with it on (compile with
+ * -DCEDRA_LOCATE_FN=model_locate_step) bump2d at tol 1e-6 rejected as many steps as without (64.7 % vs 62.2 % of
+ * its steps), bump2d and step2d at tol 1e-10 still stopped with step size underflow (error test failures not
+ * bracketed by any of cedra_switch's sign changes), and step2d at tol 1e-6 tipped over or spent its call budget
+ * where the run without it finishes: the switches it locates are not yet the discontinuities that cost the
+ * steps. Until that is understood the FMUs integrate as before. */
+#ifndef CEDRA_LOCATE_FN
+#define CEDRA_LOCATE_FN NULL
+#endif
 
 struct block_ws {
     model_ws *model;
@@ -242,9 +251,20 @@ fmi2Status block_step(instance *c, double t, double h) {
     memcpy(c->ws->x_save, b->x, sizeof(double) * NX);
     solver_msg[0] = '\0';
     model_clear_message(ws);
-    if (solver_integrate_post(&b->solver, NX, b->x, t, t + h, model_rhs, model_jac, model_accept_step,
-                              model_post_step, ws, c->ws->work, &b->stats, solver_msg, sizeof solver_msg))
-        return step_failed(c, solver_msg[0] ? solver_msg : "the solver failed", model_message(ws));
+    model_take_located(ws, -1, NULL, NULL, NULL);
+    /* x = [q, u, z] with q' = u: the implicit solver's stage systems reduce to NQ x NQ */
+    int failed = solver_integrate_post(&b->solver, NX, b->x, t, t + h, model_rhs, model_jac, model_accept_step,
+                                       CEDRA_LOCATE_FN, model_post_step, ws, c->ws->work, &b->stats, solver_msg,
+                                       sizeof solver_msg, NQ);
+    long located = model_take_located(ws, 0, NULL, NULL, NULL);
+    for (long k = 0; k < located && k < 8; k++) {   /* the most recent ones */
+        const char *name = "";
+        double t0 = 0, t1 = 0;
+        model_take_located(ws, (int)k, &name, &t0, &t1);
+        log_msg(c, fmi2OK, CAT_EVENTS, "fmi2DoStep: switch located (%ld in this call): %s in the step [%.17g, "
+                "%.17g] (%.3g s)", located, name, t0, t1, t1 - t0);
+    }
+    if (failed) return step_failed(c, solver_msg[0] ? solver_msg : "the solver failed", model_message(ws));
     for (int i = 0; i < NX; i++)
         if (!isfinite(b->x[i])) return step_failed(c, "the state is not finite after the step", "");
     if (model_outputs(ws, b->x, c->ws->y_tmp)) return step_failed(c, model_message(ws), "");

@@ -196,6 +196,7 @@ def vars_header(spec: ModelSpec, guid: str) -> str:
         f"#define CEDRA_NY {ny}", f"#define CEDRA_NS {ns}", "#define CEDRA_NX (2 * CEDRA_NQ + CEDRA_NZ)",
         f"#define CEDRA_RIGID {1 if spec.contact == 'rigid' else 0}", f"#define CEDRA_NC {spec.n_contacts}",
         f"#define CEDRA_HEIGHTMAP {1 if spec.heightmap_file else 0}",
+        f"#define CEDRA_NSW {len(spec.switch_names)}", f"#define CEDRA_NH {spec.n_hold}",
         f"#define CEDRA_CONTROLLER {1 if spec.block == 'controller' else 0}",
         f"#define CEDRA_ND {len(spec.d_names)}",
         f"#define CEDRA_PERIOD_PAR {[p.name for p in spec.params].index('ctrl.period') if spec.block == 'controller' else -1}",
@@ -205,6 +206,8 @@ def vars_header(spec: ModelSpec, guid: str) -> str:
         arr("CEDRA_PAR_START", "double", [p.start for p in spec.params], _c_real),
         arr("CEDRA_INP_START", "double", [p.start for p in spec.inputs], _c_real),
         "static const char *const CEDRA_Q_NAMES[] = {" + ", ".join(_c_str(n) for n in spec.q_names) + "};",
+        "static const char *const CEDRA_SW_NAMES[] = {" +
+        (", ".join(_c_str(n) for n in spec.switch_names) or '""') + "};",
         "static const char *const CEDRA_Y_NAMES[] = {" +
         (", ".join(_c_str(o.name) for o in spec.outputs) or '""') + "};",
         "",

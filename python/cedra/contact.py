@@ -86,3 +86,19 @@ def compliant_force(geo: ContactGeometry, v_point, ground_k, ground_d, mu, v_eps
     Ft = -mu * Fn * v_t / ca.sqrt(ca.dot(v_t, v_t) + v_eps ** 2)
     force = Fn * n + Ft
     return force, Fn, ca.dot(Ft, geo.frame[:, 0]), ca.dot(Ft, geo.frame[:, 1]), ca.norm_2(v_t), in_contact
+
+
+def rim_samples(center, axle, terrain: Terrain, radius) -> list:
+    """g(beta_k) = f(p_X, p_Y) - p_Z at the rim search's 13 samples beta_k = k pi/12, k = -6..6 (the same frame
+    as rim_point). The switching function of the best sample (model.py, issue 13) is built from them: when a
+    sample that is not a neighbour of the best one overtakes it, the contact point jumps (a wheel at a step's
+    edge: from the ground to the face)."""
+    n0 = terrain.normal(center[0], center[1])
+    t = n0 - ca.dot(n0, axle) * axle
+    r1 = -unit(t)
+    r2 = ca.cross(axle, r1)
+    out = []
+    for k in range(-6, 7):
+        p = center + radius * (ca.cos(k * ca.pi / 12) * r1 + ca.sin(k * ca.pi / 12) * r2)
+        out.append(terrain.height(p[0], p[1]) - p[2])
+    return out

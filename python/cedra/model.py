@@ -15,7 +15,7 @@ import casadi as ca
 import numpy as np
 
 from . import parameters
-from .contact import compliant_force, contact_geometry
+from .contact import compliant_force, contact_geometry, rim_samples
 from .kane import KaneSystem
 from .rover import FULL_Q, IDX, describe, drive_torque
 from .spec import ModelSpec, Quantity
@@ -136,7 +136,7 @@ class CedraModel:
                                                             p["v_eps"])
             self.kane.add_point_force(v_point, force, ca.substitute(ca.jacobian(v_at, self.u), at, geo.point))
             self.contacts.append(dict(geo=geo, Fn=Fn, Fx=Fx, Fy=Fy, slip=slip, flag=flag, force=force,
-                                      v_point=v_point, vc=vc))
+                                      v_point=v_point, vc=vc, v_n=ca.dot(v_point, geo.normal), wheel=wh))
         self.M, self.f = self.kane.equations()
         qd = self.rate(self.qf)
         # the work integral is the APPLIED torques' (with drives: after the clip and the gear loss), so
@@ -241,6 +241,72 @@ class CedraModel:
                 (_out(f"wheel[{k}].xi", "rad", f"wheel {k} rotational slip angle xi_{k}: the center's direction of "
                       "travel in the contact plane from the wheel's heading"), xi)]
 
+    # ---------------- force-law switches (issue 13 item 3) ----------------
+    @cached_property
+    def switches(self):
+        """The switching functions of the compliant model's force laws: (s, hold, hold_now, names). Each s_i is
+        continuous in the state and changes sign exactly where a force law switches; the FMU's adaptive solvers cut
+        a step whose s changes sign at the crossing (model_glue.c), so no step integrates across a discontinuity.
+
+        - contact onset / lift-off: delta_i (the law jumps by d |v_n| at touchdown);
+        - the normal force's clip max(0, k delta - d v_n): min(k delta - d v_n, k delta), which has the clip's sign
+          in contact and is negative off the ground (no false switches in the air);
+        - joint stops: angle - limit for each stop, and the clip of the stop torque (it only pushes out):
+          max(-k (a - hi) - d rate, k (hi - a)) above, min(-k (a - lo) - d rate, k (lo - a)) below, which again
+          carry the clip's sign only beyond their stop;
+        - drives (spec section 11): the command against both edges of the motor envelope;
+        - the best rim sample (non-planar terrain): the rim search starts Newton from the best of 13 samples,
+          so the contact point jumps when a sample that is not a neighbour of the best one overtakes it. The
+          best index is HELD over a step (argument `hold`, the glue evaluates `hold_now` at the step's start):
+          s = g(held best) - max of g over the samples at least two apart from it. Neighbours swapping is not a
+          switch: Newton from either converges to the same maximum.
+        Rigid scenes have none: their decision tree holds its modes over a step and locates touch-downs itself."""
+        if self.rigid:
+            return [], [], [], []
+        p, qf, qd = self.p, self.qf, self.rate(self.qf)
+        s, names, hold, hold_now = [], [], [], []
+        for c in self.contacts:
+            k = c["wheel"].index
+            d = c["geo"].depth
+            s += [d, ca.fmin(p["ground_k"] * d - p["ground_d"] * c["v_n"], p["ground_k"] * d)]
+            names += [f"wheel[{k}] contact", f"wheel[{k}] normal-force clip"]
+        stops = [("theta1", -p["bogie_stop"], p["bogie_stop"]), ("theta2", -p["bogie_stop"], p["bogie_stop"]),
+                 ("theta4", p["fork_stop_lo"], p["fork_stop_hi"])]
+        for name, lo, hi in stops:
+            if name not in self.q_names:       # 2D: theta2 is theta1
+                continue
+            a, rate, k, dd = qf[IDX[name]], qd[IDX[name]], p["stop_k"], p["stop_d"]
+            s += [a - hi, ca.fmax(-k * (a - hi) - dd * rate, k * (hi - a)),
+                  a - lo, ca.fmin(-k * (a - lo) - dd * rate, k * (lo - a))]
+            names += [f"{name} upper stop", f"{name} upper stop clip", f"{name} lower stop",
+                      f"{name} lower stop clip"]
+        if self.opt.drives:
+            for k in range(6):
+                w = qd[IDX[f"gamma{k + 1}"]]
+                cmd = self.i.get(f"tau[{k + 1}]", 0)
+                T, w0 = p["drive_stall_torque"], p["drive_noload_speed"]
+                s += [T * (1 - w / w0) - cmd, cmd + T * (1 + w / w0)]
+                names += [f"wheel[{k + 1}] drive upper edge", f"wheel[{k + 1}] drive lower edge"]
+        if not self.terrain.planar:
+            for c in self.contacts:
+                wh = c["wheel"]
+                g = rim_samples(wh.center, wh.axle, self.terrain, p["R_w"])
+                ks = list(range(-6, 7))
+                best_k, best_g = 0, g[ks.index(0)]            # the rim search's order: k = 0 first, strict >
+                for k in ks:
+                    if k == 0:
+                        continue
+                    better = g[ks.index(k)] > best_g
+                    best_k, best_g = ca.if_else(better, k, best_k), ca.if_else(better, g[ks.index(k)], best_g)
+                h = ca.SX.sym(f"hold{wh.index}")
+                g_held = sum(ca.if_else(h == k, g[j], 0) for j, k in enumerate(ks))
+                far = [ca.if_else(ca.fabs(h - k) >= 1, g[j], -1e3) for j, k in enumerate(ks)]
+                s.append(g_held - ca.mmax(ca.vertcat(*far)))
+                names.append(f"wheel[{wh.index}] best rim sample")
+                hold.append(h)
+                hold_now.append(best_k)
+        return s, hold, hold_now, names
+
     def functions(self) -> dict[str, ca.Function]:
         q, u, par, inp = self.q, self.u, self.par, self.inp
         n = q.numel()
@@ -267,6 +333,11 @@ class CedraModel:
             fns["cedra_contact"] = ca.Function("cedra_contact", [q, u, inp, par],
                                                [W, ca.jtimes(vc, q, u), vc,
                                                 ca.vertcat(*[-c["geo"].depth for c in self.contacts])])
+        sw, hold, hold_now, _ = self.switches
+        if sw:
+            hv = ca.vertcat(*hold) if hold else ca.SX(0, 1)
+            fns["cedra_switch"] = ca.Function("cedra_switch", [q, u, inp, par, hv],
+                                              [ca.vertcat(*sw), ca.vertcat(*hold_now) if hold else ca.SX(0, 1)])
         return fns | {
             "cedra_M": ca.Function("cedra_M", [q, par], [self.M]),
             "cedra_f": ca.Function("cedra_f", [q, u, inp, par], [self.f, self.power]),
@@ -333,6 +404,7 @@ class CedraModel:
                          start_params={f"start.{n}": k for k, n in enumerate(self.q_names)},
                          functions=dict(self._num), contact=self.opt.contact,
                          n_contacts=len(self.contacts) if self.rigid else 0, heightmap_file=self.opt.heightmap,
+                         switch_names=list(self.switches[3]), n_hold=len(self.switches[1]),
                          **kw)
 
     # ---------------- numeric helpers (tests, reference solutions) ----------------

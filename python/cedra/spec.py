@@ -39,6 +39,15 @@ except the contact forces, and the glue solves for accelerations and contact for
                   lambda_k (same frame) enters as M udot = f + W' lambda. Outputs named wheel[i].Fn/Fx/Fy/mode are
                   computed by the glue from its solution (cedra_out gives 0 there).
 
+Force-law switches (issue 13; generated only when the model has switches, len(switch_names) > 0):
+    cedra_switch  (q, u, inp, par, hold[nh]) -> (s[nsw], hold_now[nh])
+                  switching functions: each s_i is continuous in the state and changes sign exactly where a force
+                  law switches (contact onset, a clip, a joint stop, ...), so the glue cuts an adaptive step whose
+                  s changes sign at the crossing. `hold` are discrete choices the model makes (e.g. which rim
+                  sample the contact search starts from), held over one step: the glue evaluates hold_now at the
+                  step's start and passes it for every evaluation inside the step; s is measured relative to them
+                  (nh may be 0).
+
 A controller (block == "controller", fmu_src/controller.c) is sampled instead of integrated: no q, u, z, no
 start values, no solver. Its discrete state xd (d_names) and outputs change only at samples:
     cedra_sample  (inp, par, xd)        -> (y[ny], xd_next[nd])
@@ -95,6 +104,8 @@ class ModelSpec:
     block: str = "plant"                    # "plant": the ODE above in an embedded solver (fmu_src/plant.c);
     #                                         "controller": a sampled block (fmu_src/controller.c, see below)
     d_names: list[str] = field(default_factory=list)   # controller: discrete states, in xd order
+    switch_names: list[str] = field(default_factory=list)   # cedra_switch's entries (none: no cedra_switch)
+    n_hold: int = 0                         # cedra_switch's held discrete choices
     heightmap_file: str = ""                # terrain "heightmap": the grid file, shipped as resources/heightmap.txt;
     #                                         the generated functions call the external cedra_heightmap (its C
     #                                         implementation is fmu_src/heightmap.c)
@@ -106,7 +117,8 @@ class ModelSpec:
     def function_names(self) -> list[str]:
         if self.block == "controller":
             return list(CONTROLLER_FUNCTION_NAMES)
-        return list(FUNCTION_NAMES) + (["cedra_contact"] if self.contact == "rigid" else [])
+        return list(FUNCTION_NAMES) + (["cedra_contact"] if self.contact == "rigid" else []) + \
+            (["cedra_switch"] if self.switch_names else [])
 
     def check(self) -> None:
         """Raise ValueError if the functions do not follow the contract above."""
@@ -131,6 +143,9 @@ class ModelSpec:
         if self.contact == "rigid":
             nc = self.n_contacts
             expected["cedra_contact"] = ([nq, nq, ni, npar], [(3 * nc, nq), (3 * nc, 1), (3 * nc, 1), (nc, 1)])
+        if self.switch_names:
+            nsw, nh = len(self.switch_names), self.n_hold
+            expected["cedra_switch"] = ([nq, nq, ni, npar, nh], [(nsw, 1), (nh, 1)])
         self._check_functions(expected)
 
     def _check_functions(self, expected: dict) -> None:
