@@ -21,8 +21,8 @@ RECORD = (["body.x", "body.y", "body.yaw", "body.vx", "body.vy", "body.wz", "ste
 
 
 def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False) -> dict:
-    from cedra.cosim import DriveLoop
-    from cedra.scenario import fmu, run_loop, write_csv
+    from cedra.run.cosim import DriveLoop
+    from cedra.run.scenario import fmu, run_loop, write_csv
     stop_time = stop_time or STOP_TIME
     loop = DriveLoop(fmu("flat3d", build_dir), fmu("drive3d", build_dir))
     r = run_loop(loop, "turn_flat", stop_time, STEP, lambda t: {"cmd.v": SPEED, "cmd.yaw_rate": YAW_RATE}, RECORD,

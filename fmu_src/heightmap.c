@@ -281,7 +281,7 @@ static const casadi_int *const OUT0[] = {SP_1, SP_X, SP_2X2};
 static const casadi_int *const IN1[] = {SP_X, SP_1, SP_X, SP_2X2};
 static const casadi_int *const OUT1[] = {SP_1X2, SP_2X2, SP_4X2};
 
-/* the metadata CasADi reads when it loads the functions from a shared library (Python side, cedra.heightmap) */
+/* the metadata CasADi reads when it loads the functions from a shared library (Python side, cedra.mechanics.heightmap) */
 EXTERNAL_SHAPE(cedra_heightmap, 1, 3, IN0, OUT0)
 EXTERNAL_SHAPE(jac_cedra_heightmap, 4, 3, IN1, OUT1)
 
@@ -298,7 +298,7 @@ int jac_cedra_heightmap(const double **arg, double **res, casadi_int *iw, double
 }
 
 #ifdef CEDRA_HEIGHTMAP_HOST
-/* for Python (cedra.heightmap): one process-wide map, loaded with malloc and active in the loading thread */
+/* for Python (cedra.mechanics.heightmap): one process-wide map, loaded with malloc and active in the loading thread */
 static heightmap host_map;
 static char host_msg[512];
 

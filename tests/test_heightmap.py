@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
-from cedra import heightmap, scene
-from cedra.model import CedraModel, ModelOptions
+from cedra.mechanics import heightmap
+from cedra.models import scene
+from cedra.models.plant import CedraModel, ModelOptions
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples"))

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..spec import CHECK_REASONS
-from ..scene import load_shipped
-from .common import Problem, Schedule, fmt, fmu_path, md_table, run_fmu, torques
+from cedra.contract import CHECK_REASONS
+from cedra.models.scene import load_shipped
+from cedra.reports.common import Problem, Schedule, fmt, fmu_path, md_table, run_fmu, torques
 
 ENERGY_REL_TOL = 1e-5      # allowed energy increase, relative to |E(0)|, in zero-torque dissipative cases
 WALL_BUDGET = 60.0         # s of wall time per run; a run still going is stopped and reported as such
@@ -167,7 +167,7 @@ def reference_energy_increase(case: Case):
     exactly passive), so that the FMU is only charged with what its solver adds."""
     if case.name in _EREF:
         return _EREF[case.name]
-    from .common import grid, python_run_outputs, run_casadi
+    from cedra.reports.common import grid, python_run_outputs, run_casadi
     prob, q0, u0 = start_state(case)
     tg = grid(case.t_end, min(case.comm, 0.01))
     r = run_casadi(prob, case.schedule, prob.x0(q0, u0), tg, "cvodes", 1e-10)

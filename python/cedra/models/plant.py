@@ -14,12 +14,12 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from . import parameters
-from .contact import compliant_force, contact_geometry, rim_samples
-from .kane import KaneSystem
-from .rover import FULL_Q, IDX, describe, drive_torque
-from .spec import ModelSpec, Quantity
-from .terrain import KINDS, TERRAIN_INPUTS, Terrain
+from cedra.rover import parameters
+from cedra.mechanics.contact import compliant_force, contact_geometry, rim_samples
+from cedra.mechanics.kane import KaneSystem
+from cedra.rover.mechanism import FULL_Q, IDX, describe, drive_torque
+from cedra.contract import ModelSpec, Quantity
+from cedra.mechanics.terrain import KINDS, TERRAIN_INPUTS, Terrain
 
 PLANAR_MAP = {"y": None, "yaw": None, "roll": None, "theta2": "theta1", "theta3": None, "theta6": None,
               "gamma3": "gamma1", "gamma4": "gamma2"}
@@ -300,7 +300,7 @@ class CedraModel:
                     best_k, best_g = ca.if_else(better, k, best_k), ca.if_else(better, g[ks.index(k)], best_g)
                 h = ca.SX.sym(f"hold{wh.index}")
                 g_held = sum(ca.if_else(h == k, g[j], 0) for j, k in enumerate(ks))
-                far = [ca.if_else(ca.fabs(h - k) >= 1, g[j], -1e3) for j, k in enumerate(ks)]
+                far = [ca.if_else(ca.fabs(h - k) >= 2, g[j], -1e3) for j, k in enumerate(ks)]
                 s.append(g_held - ca.mmax(ca.vertcat(*far)))
                 names.append(f"wheel[{wh.index}] best rim sample")
                 hold.append(h)
