@@ -47,7 +47,7 @@ def _p(a):
 @pytest.mark.parametrize("scene", ["bump2d", "flat3d"])
 def test_reduced_stage_solve_equals_full_solve(lib, scene):
     from cedra.reports.common import Problem
-    from cedra.scene import load_shipped
+    from cedra.models.scene import load_shipped
     prob = Problem(load_shipped(scene))
     q0 = prob.settle()
     rng = np.random.default_rng(13)
