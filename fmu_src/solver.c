@@ -468,6 +468,28 @@ static int adaptive(const solver_settings *s, int n, int n2, double *x, double t
             continue;
         }
         fails = 0;
+        int crossed = 0;     /* the step crosses a switch and is at most the location tolerance long */
+        if (!(err <= 1.0) && locate) {
+            /* A step across a switch (a force law's jump) fails the error test at any length: cut it at the switch
+             * instead of shrinking it toward the switch until the step size underflows. A step that cannot be
+             * evaluated for its switches (a wild trial state) is just rejected. */
+            double len = locate(ctx, t, x, tend, xnew);
+            if (len == HUGE_VAL) {
+                crossed = 1;
+                err = 1.0;        /* accepted: the error is the jump times a step of at most the tolerance */
+            } else if (len >= 0 && len < (tend - t) * (1 - 1e-9) &&
+                       len <= hs * fmax(FAC_SHRINK, SAFETY * pow(err, -expo))) {
+                /* (only a cut no longer than the error control's own retry: a trial state past the switch that
+                 * failed the test for another reason must still shrink, or the same cut would repeat forever) */
+                st->rejected++;
+                rejected_last = 1;
+                last_ev = EV_EVENT;
+                h_uncut = fmax(h_uncut, located ? 0 : hs);
+                located = 1;
+                h = fmax(len, hmin);
+                continue;
+            }
+        }
         if (!(err <= 1.0)) {
             st->rejected++;
             rejected_last = 1;
@@ -479,7 +501,7 @@ static int adaptive(const solver_settings *s, int n, int n2, double *x, double t
             continue;
         }
 
-        if (accept) {
+        if (accept && !crossed) {
             double factor = accept(ctx, t, x, tend, xnew);
             if (factor < 0) {
                 put_msg(msg, msg_len, "%s: the step check failed at t = %.15g", name, tend);
@@ -496,8 +518,9 @@ static int adaptive(const solver_settings *s, int n, int n2, double *x, double t
                 continue;
             }
         }
-        if (locate) {
+        if (locate && !crossed) {
             double len = locate(ctx, t, x, tend, xnew);
+            if (len == HUGE_VAL) len = tend - t;   /* located: accept */
             if (!(len >= 0)) {
                 put_msg(msg, msg_len, "%s: the switch location failed at t = %.15g", name, tend);
                 return 1;
@@ -582,8 +605,9 @@ double solver_locate_switches(int nsw, const double *s0, const double *s1, doubl
             if (which) *which = i;
         }
     }
+    if (first == HUGE_VAL) return len;
     /* (t + loc_tol) - t is loc_tol only up to rounding in t: a step of loc_tol is "at most loc_tol" */
-    if (first == HUGE_VAL || len <= loc_tol * (1 + 1e-6)) return len;
+    if (len <= loc_tol * (1 + 1e-3)) return HUGE_VAL;
     /* More than loc_tol ahead: end a quarter of loc_tol short of the estimate (the next step then starts within
      * loc_tol of the switch, where the estimate is accurate); within loc_tol: a step of loc_tol crosses it. */
     return first > loc_tol ? first - 0.25 * loc_tol : loc_tol;

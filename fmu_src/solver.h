@@ -25,15 +25,17 @@ typedef int (*solver_post_fn)(void *ctx, double t, double *x);
  * Negative on failure (the reason in the callback's context). RK4, a fixed-step method, does not call it. */
 typedef double (*solver_accept_fn)(void *ctx, double t, const double *x, double t_new, const double *x_new);
 
-/* Called by the adaptive methods after a step passed the error test and the accept callback: the length of the
- * step to take instead when a switching function of the model changes sign inside the step (0 < len < t_new - t:
- * the step is retried with exactly that length, so that it ends at the switch, and the cut does not lower the
- * step-size proposal after it), or t_new - t (or more) to accept the step. Negative on failure.
- * solver_locate_switches is the usual body of such a callback. */
+/* Called by the adaptive methods for a step that passed the error test (after the accept callback) or failed it:
+ * the length of the step to take instead when a switching function of the model changes sign inside the step
+ * (0 < len < t_new - t: the step is retried with exactly that length, so that it ends at the switch, and the cut
+ * does not lower the step-size proposal after it); HUGE_VAL when the step crosses a switch and is short enough
+ * that the switch counts as located (the step is accepted even if it failed the error test: its error is the
+ * force law's jump times that short step); t_new - t (or more) when no switch lies inside. Negative on failure
+ * (for a step that failed the error test: then just rejected). solver_locate_switches is the usual body. */
 typedef double (*solver_locate_fn)(void *ctx, double t, const double *x, double t_new, const double *x_new);
 
 /* Locate the first sign change of nsw switching functions between s0 (at t) and s1 (at t_new): returns t_new - t
- * if none changes sign or the step is at most loc_tol long (the crossing is then located within loc_tol);
+ * if none changes sign, HUGE_VAL if one does and the step is at most loc_tol long (located within loc_tol);
  * otherwise the length of the step to try instead: just short of the crossing (linear interpolation of s) when
  * it lies more than loc_tol ahead, loc_tol when it lies within loc_tol. *which (if not NULL) = the index of that
  * switch, or -1. A switch exactly 0 at t is not a crossing (the step starts on it). */
