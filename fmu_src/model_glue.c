@@ -366,8 +366,8 @@ double model_locate_step(void *ctx, double t, const double *x, double t_new, con
     return len;
 #else
     (void)ctx;
-    (void)t;
     (void)x;
+    (void)x_new;
     return t_new - t;
 #endif
 }

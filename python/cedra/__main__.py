@@ -100,11 +100,15 @@ def main(argv=None):
                     help="only the MuJoCo side-by-side table, 1 s runs (what the tests run)")
     be.add_argument("--side-by-side", action="store_true",
                     help="only the MuJoCo side-by-side table (the paper's 15 s run)")
+    be.add_argument("--step-cost", action="store_true",
+                    help="only the cost of one rodas4 step, dense against reduced (Schur) stage solve")
     r = sub.add_parser("report", help="work-precision or stability report")
     r.add_argument("which", choices=["precision", "stability"])
     r.add_argument("--build", default="build")
     r.add_argument("--out", default="out/report")
     r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")
+    r.add_argument("--scene", action="append", default=None,
+                   help="precision: only this scene of the report (repeatable)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     add_fuzz_parser(sub)
     args = ap.parse_args(argv)

@@ -135,9 +135,114 @@ def bench_contact(build, stop_time):
     return rows
 
 
+# ------------------------------------------------------------------ cost of one implicit step (issue 13 item 4)
+STEP_SCENES = ("bump2d", "bump3d")
+STEP_VARIANTS = {        # label: extra C flags of the FMU build (fmu_src/plant.c)
+    "dense 2n+1 solve": ["-DCEDRA_SCHUR_N2=0"],
+    "Schur n x n solve": [],
+}
+STAGE_C = r"""
+#include <time.h>
+#include "solver.h"
+/* seconds per RODAS4 step's linear algebra: one factorization and six stage solves of (fac I - J) k = r */
+double stage_seconds(int n, int n2, const double *J, int reps) {
+    double work[80 * 80 + 80], r[80];
+    int piv[80];
+    struct timespec a, b;
+    volatile double sink = 0;
+    clock_gettime(CLOCK_MONOTONIC, &a);
+    for (int k = 0; k < reps; k++) {
+        double fac = 1e3 * (1 + 1e-9 * k);
+        solver_stage_factor(n, n2, fac, J, work, piv);
+        for (int s = 0; s < 6; s++) {
+            for (int i = 0; i < n; i++) r[i] = 1.0 + i + s;
+            solver_stage_solve(n, n2, fac, J, work, piv, r);
+            sink += r[0];
+        }
+    }
+    clock_gettime(CLOCK_MONOTONIC, &b);
+    (void)sink;
+    return ((double)(b.tv_sec - a.tv_sec) + 1e-9 * (double)(b.tv_nsec - a.tv_nsec)) / reps;
+}
+"""
+
+
+def stage_cost(prob, workdir: Path) -> dict:
+    """Microseconds of one RODAS4 step's linear algebra (1 factorization + 6 solves) at the rover's Jacobian,
+    dense (n = 2 nq + 1) and reduced (nq x nq Schur complement), fmu_src/solver.c compiled with gcc -O2."""
+    import ctypes
+    root = Path(__file__).resolve().parents[3] / "fmu_src"
+    src = workdir / "stage.c"
+    src.write_text(STAGE_C)
+    lib = workdir / "stage.so"
+    subprocess.run(["gcc", "-O2", "-fPIC", "-shared", f"-I{root}", str(src), str(root / "solver.c"),
+                    str(root / "linalg.c"), "-o", str(lib), "-lm"], check=True, capture_output=True)
+    so = ctypes.CDLL(str(lib))
+    so.stage_seconds.restype = ctypes.c_double
+    so.stage_seconds.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.POINTER(ctypes.c_double), ctypes.c_int]
+    q0 = prob.settle()
+    u = np.zeros(prob.nq)
+    u[prob.q_names.index("x")] = 0.2
+    J = np.asfortranarray(np.array(prob.jac(prob.x0(q0, u), np.concatenate([prob.inp0, prob.par]))))
+    Jp = J.ravel(order="F").ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+    n = prob.nx
+    out = {}
+    for label, n2 in (("dense", 0), ("schur", prob.nq)):
+        so.stage_seconds(n, n2, Jp, 2000)
+        out[label] = min(so.stage_seconds(n, n2, Jp, 20000) for _ in range(3))
+    return out
+
+
+def step_cost(build: Path, stop_time=8.0, log=print) -> list[dict]:
+    """Per attempted step of rodas4 on the paper's run (the main job's controller, scene defaults): rhs
+    evaluations, Jacobians and LU factorizations (RODAS4: one factorization per attempt, one Jacobian per new
+    start), and CPU microseconds, for the FMU built with the dense and with the reduced stage solve (the same
+    sources otherwise), plus the linear algebra alone."""
+    from cedra.fmu.packaging import CFLAGS, build_fmu
+    from cedra.models.scene import load_shipped
+    from cedra.reports.common import Problem
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        for name in STEP_SCENES:
+            sc = load_shipped(name)
+            la = stage_cost(Problem(sc), Path(d))
+            for label, flags in STEP_VARIANTS.items():
+                CFLAGS.extend(flags)
+                try:
+                    path = build_fmu(sc.spec(), Path(d) / label.replace(" ", "_"))
+                finally:
+                    for fl in flags:
+                        CFLAGS.remove(fl)
+                r = fmu_closed_loop(path, stop_time, label=f"{name} {label}")
+                attempts = r.steps + r.extra["rejected"]
+                rows.append(dict(scene=name, variant=label, ok=r.ok, cpu=r.cpu, steps=r.steps,
+                                 rejected=r.extra["rejected"], evals=r.extra["rhs_evals"],
+                                 us_per_attempt=1e6 * r.cpu / attempts, evals_per_attempt=r.extra["rhs_evals"] / attempts,
+                                 la_us=1e6 * la["schur" if "Schur" in label else "dense"]))
+                log(f"  ... {name} {label}: {r.cpu:.2f} s CPU")
+    return rows
+
+
+def print_step_cost(build: Path, stop_time=8.0) -> int:
+    print(f"\ncost of one rodas4 step (issue 13 item 4): the paper's run, {stop_time:g} s, scene defaults; per attempted "
+          "step (accepted + rejected); 1 LU factorization per attempt, 1 Jacobian per accepted step; CPU = "
+          "time.process_time of the run; linear algebra = 1 factorization + 6 stage solves at the settled state's "
+          "Jacobian")
+    rows = step_cost(build, stop_time)
+    print("| scene | stage solve | CPU s | steps (rejected) | rhs evals per attempt | us per attempt | linear algebra "
+          "us per attempt |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['scene']} | {r['variant']} | {r['cpu']:.3f} | {r['steps']} ({r['rejected']}) | "
+              f"{r['evals_per_attempt']:.2f} | {r['us_per_attempt']:.1f} | {r['la_us']:.2f} |")
+    return 0 if all(r["ok"] for r in rows) else 1
+
+
 def main(args):
     build = Path(getattr(args, "build", "build"))
     stop_time = float(getattr(args, "stop_time", 10.0))
+    if getattr(args, "step_cost", False):
+        return print_step_cost(build)
     if getattr(args, "quick", False):       # the MuJoCo side-by-side table only, short (what the tests run)
         return print_side_by_side(build, QUICK_STOP)
     if getattr(args, "side_by_side", False):
@@ -183,6 +288,7 @@ def main(args):
     if all(rows.values()):
         for label in ("bump2d_rigid", "bump2d_rigid dopri5"):
             print(f"  ratio {label} / bump2d wall time: x{rows[label]['wall'] / rows['bump2d']['wall']:.2f}")
+    rc = max(rc, print_step_cost(build))
     return max(rc, print_side_by_side(build, SIDE_STOP))
 
 
@@ -229,11 +335,11 @@ def fmu_closed_loop(path, stop_time, settings: dict | None = None, label=""):
             t, x, F = t[:k + 1], x[:k + 1], F[:k + 1]
             break
     cpu = time.process_time() - cpu
-    steps, rejected = (int(v) for v in f.get(["solver.steps", "solver.rejected"]))
+    steps, rejected, evals = (int(v) for v in f.get(["solver.steps", "solver.rejected", "solver.rhs_evals"]))
     msg = "" if ok else f"{f.status}: " + "; ".join(f.messages[-2:])
     f.close()
     return Result(label or f"FMU {Path(path).stem}", cpu, float(t[-1]), steps, t, x, F, ok, msg,
-                  extra=dict(rejected=rejected))
+                  extra=dict(rejected=rejected, rhs_evals=evals))
 
 
 def side_by_side(build: Path, stop_time=SIDE_STOP, dts=MUJOCO_DTS, log=print) -> dict:

@@ -26,6 +26,8 @@ REF_TOL = 1e-12
 OUT_DT = 0.01           # reference output grid; errors are taken at the runs' points on this grid
 FMU_COMM = 0.01         # communication step of the solver-setting sweeps
 LEVELS = [1e-3, 1e-4, 1e-5, 1e-6, 1e-7]     # position errors (m) at which speed-ups are compared
+BASELINE_FLAGS = ("-DCEDRA_LOCATE_FN=NULL", "-DCEDRA_SCHUR_N2=0")
+BASELINE_LABEL = "rodas4 no switches, dense"   # not "FMU ...": a peer in the speed-up tables
 
 
 # ------------------------------------------------------------------ scenes and their inputs
@@ -72,10 +74,15 @@ class Config:
     implicit_rtols: list          # scipy Radau, BDF, LSODA
     explicit_rtols: list          # scipy RK45, DOP853
     idas_check: bool = True       # integrate the reference a second time with idas
+    # issue 13: rodas4 from an FMU built without switch location and with the dense 2n+1 stage solve (the same
+    # sources, C flags of fmu_src/plant.c), at these tolerances: the gain of items 3-4 at equal error
+    baseline_tols: list = field(default_factory=list)
 
 
 FULL = Config(
-    scenes={"bump2d": dict(t_end=8.0, schedule=pi_schedule), "flat3d": dict(t_end=4.0, schedule=flat3d_schedule)},
+    scenes={"bump2d": dict(t_end=8.0, schedule=pi_schedule), "flat3d": dict(t_end=4.0, schedule=flat3d_schedule),
+            # issue 13: the sharp step (the switches located) and the paper's run in 3D
+            "step2d": dict(t_end=8.0, schedule=pi_schedule), "bump3d": dict(t_end=8.0, schedule=pi_schedule)},
     rodas4_tols=[1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10],
     dopri5_tols=[1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10],
     rk4_steps=[4e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5],
@@ -84,6 +91,7 @@ FULL = Config(
     sundials_tols=[1e-4, 1e-6, 1e-8, 1e-10],
     implicit_rtols=[1e-3, 1e-5, 1e-7, 1e-9],
     explicit_rtols=[1e-3, 1e-6, 1e-9],
+    baseline_tols=[1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10],
 )
 
 QUICK = Config(
@@ -168,6 +176,31 @@ def run_scene(name, cfg: Config, build="build", log=print) -> SceneResult:
             fmu("rodas4", tol, 0.01, FMU_COMM)
         for tol in cfg.dopri5_tols:
             fmu("dopri5", tol, 0.01, FMU_COMM)
+        if cfg.baseline_tols:
+            import tempfile
+            from cedra.fmu.packaging import CFLAGS, build_fmu
+            flags = list(BASELINE_FLAGS)
+            with tempfile.TemporaryDirectory() as d:
+                CFLAGS.extend(flags)
+                try:
+                    base = build_fmu(scene.spec(), d)
+                finally:
+                    for fl in flags:
+                        CFLAGS.remove(fl)
+                for tol in cfg.baseline_tols:
+                    r = run_fmu(base, prob, sched, q0, t_end, FMU_COMM, "rodas4", tol, 0.01, record=watch,
+                                record_every=OUT_DT, check_all=False)
+                    r.method = BASELINE_LABEL
+                    e = errors(R, r.t, r.Y, watch, prob) if len(r.t) else dict(pos_abs=np.nan, pos_rel=np.nan,
+                                                                                 fn_abs=np.nan, fn_rel=np.nan, n=0)
+                    if not r.ok:
+                        e = e | dict(pos_abs=np.inf, fn_abs=np.inf, pos_rel=np.inf, fn_rel=np.inf)
+                    row = _row(r, FMU_COMM, e)
+                    row["rejected"] = r.extra.get("rejected", -1)
+                    res.rows.append(row)
+                    log(f"  {r.method:12s} {r.setting:12s}: {r.wall:7.2f} s, steps {r.steps}, pos err "
+                        f"{e['pos_abs']:.2e} m, Fn err {e['fn_abs']:.2e} N" + ("" if r.ok else f"  [{r.status}: "
+                                                                               f"{r.message}]"))
         for h in cfg.rk4_steps:
             fmu("rk4", 1e-6, h, FMU_COMM)
         for method, (tol, h) in cfg.comm_settings.items():
@@ -214,7 +247,7 @@ def cost_at(rows, method, level, key="pos_abs"):
 def speedups(res: SceneResult, levels=LEVELS):
     methods = list(dict.fromkeys(r["method"] for r in res.rows))
     fmus = [m for m in methods if m.startswith("FMU")]
-    peers = [m for m in methods if not m.startswith("FMU")]
+    peers = [m for m in methods if not m.startswith("FMU") and m != BASELINE_LABEL]
     table = []
     for lev in levels:
         fbest = [(cost_at(res.rows, m, lev), m) for m in fmus]
@@ -223,8 +256,10 @@ def speedups(res: SceneResult, levels=LEVELS):
         pbest = [x for x in pbest if x[0] is not None]
         f = min(fbest) if fbest else None
         p = min(pbest) if pbest else None
+        rodas = cost_at(res.rows, "FMU rodas4", lev)
+        base = cost_at(res.rows, BASELINE_LABEL, lev)
         table.append(dict(level=lev, fmu=f, peer=p, per_peer={m: cost_at(res.rows, m, lev) for m in peers},
-                          ratio=(p[0] / f[0]) if (f and p) else None))
+                          ratio=(p[0] / f[0]) if (f and p) else None, rodas4=rodas, baseline=base))
     return table
 
 
@@ -329,6 +364,18 @@ def write(results, out_dir: Path, command: str, wall_total: float):
             w.writerow(keys)
             for r in res.rows:
                 w.writerow([r.get(k, "") for k in keys])
+        base = [s for s in sp if s.get("baseline") is not None or s.get("rodas4") is not None]
+        if any(r["method"] == BASELINE_LABEL for r in res.rows):
+            md += [f"Switch location and the reduced stage solve (issue 13): least wall time of FMU rodas4 and of "
+                   f"`{BASELINE_LABEL}` (the same FMU sources built with {' '.join(BASELINE_FLAGS)}: no switch "
+                   "location, the dense 2n+1 stage solve) reaching each position error.", ""]
+            md += [md_table(["pos err <= [m]", "FMU rodas4 [s]", f"{BASELINE_LABEL} [s]", "baseline / FMU"],
+                            [[fmt(s["level"]), fmt(s["rodas4"]), fmt(s["baseline"]),
+                              fmt(s["baseline"] / s["rodas4"]) if s["rodas4"] and s["baseline"] else "-"]
+                             for s in base]), ""]
+            pairs = [s for s in base if s["rodas4"] and s["baseline"]]
+            summary.append(f"{res.name}: FMU rodas4 vs {BASELINE_LABEL}: " + (", ".join(
+                f"x{s['baseline'] / s['rodas4']:.2f} at {s['level']:g} m" for s in pairs) or "no common level"))
         ratios = [s for s in sp if s["ratio"] is not None]
         if ratios:
             summary.append(f"{res.name}: FMU faster than the fastest peer by " + ", ".join(
@@ -349,8 +396,14 @@ def main(args):
     out = Path(getattr(args, "out", "out/report"))
     build = getattr(args, "build", "build")
     t0 = time.perf_counter()
-    results = [run_scene(name, cfg, build) for name in cfg.scenes]
-    cmd = "python -m cedra report precision" + (" --quick" if cfg is QUICK else "")
+    only = getattr(args, "scene", None)
+    unknown = set(only or []) - set(cfg.scenes)
+    if unknown:
+        print(f"error: not a scene of the report: {sorted(unknown)} (it has {list(cfg.scenes)})", file=sys.stderr)
+        return 2
+    results = [run_scene(name, cfg, build) for name in cfg.scenes if not only or name in only]
+    cmd = "python -m cedra report precision" + (" --quick" if cfg is QUICK else "") + \
+        "".join(f" --scene {n}" for n in only or [])
     summary = write(results, out, cmd, time.perf_counter() - t0)
     print(f"wrote {out / 'precision.md'}")
     for s in summary:
