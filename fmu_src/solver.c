@@ -287,7 +287,15 @@ void solver_stage_solve(int n, int n2, double fac, const double *J, double *work
 #define RO_J(w, n) ((w) + 10 * (size_t)(n))
 #define RO_W(w, n) ((w) + 10 * (size_t)(n) + (size_t)(n) * (n))
 
-/* Data at the start of a RODAS4 step: F, the Jacobian and F_t at (t, x); kept when a step is rejected. */
+/* Data at the start of a RODAS4 step: F, the Jacobian and F_t at (t, x); kept when a step is rejected (a retry
+ * from the same point, whatever its h, refactors only the n2 x n2 stage matrix: the Jacobian is reused).
+ * Jacobian reuse ACROSS accepted steps (issue 13 item 4) is not done, by decision: RODAS4's order conditions
+ * assume the exact Jacobian at the step's start (it is not a W-method), so an old J costs it its order and its
+ * error estimate's meaning exactly where the contact switches change J; a W-method (e.g. ROS34PW2, order 3) or a
+ * Radau/BDF with simplified Newton as a 4th solver.method would keep J, but on this model one Jacobian
+ * (cedra_rjac plus 2 nq solves with M; bump2d: ~9 us + the solves) costs about two right-hand sides (~7 us each)
+ * of the ~8 a step evaluates (6 stages, F and dF/dt at the start), so the saving is bounded by ~20 % of a step
+ * while a lower-order method needs more steps at the tolerances the report measures (1e-6 and tighter). The measured costs are in `python -m cedra bench --step-cost`. */
 static int rodas4_start(int n, const double *x, double t, double tmax, solver_rhs_fn rhs, solver_jac_fn jac,
                         void *ctx, double *w, solver_stats *st) {
     double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *tmp = RO_XNEW(w, n), *J = RO_J(w, n);
