@@ -20,15 +20,17 @@ RECORD = (["body.x", "body.y", "body.yaw", "body.vx", "body.vy", "body.wz", "ste
           [f"tau[{i}]" for i in range(1, 7)])
 
 
-def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False) -> dict:
+def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False, watch=True) -> dict:
     from cedra.run.cosim import DriveLoop
-    from cedra.run.scenario import fmu, run_loop, write_csv
+    from cedra.run.scenario import fmu, run_loop, watch_run, write_csv
+    from cedra.run.watch import plus_watched
     stop_time = stop_time or STOP_TIME
     loop = DriveLoop(fmu("flat3d", build_dir), fmu("drive3d", build_dir))
-    r = run_loop(loop, "turn_flat", stop_time, STEP, lambda t: {"cmd.v": SPEED, "cmd.yaw_rate": YAW_RATE}, RECORD,
-                 quiet)
+    r = run_loop(loop, "turn_flat", stop_time, STEP, lambda t: {"cmd.v": SPEED, "cmd.yaw_rate": YAW_RATE},
+                 plus_watched(RECORD), quiet)
     out = Path(out_dir)
     write_csv(out / "turn_flat.csv", r.names, r.rows)
+    watch_run(out, r.names, r.rows, fmu("flat3d", build_dir), f"turn_flat: {SPEED} m/s, {YAW_RATE} rad/s", watch)
     t = r.column("time")
     late = t >= min(8.0, 0.5 * stop_time)
     speed = np.hypot(r.column("body.vx"), r.column("body.vy"))

@@ -41,11 +41,12 @@ def cmd_simulate(args):
             print(f"{name:18s} {line}")
         return 0
     if args.scene == scenario.MAIN_JOB:
-        return simulate.main(Path(args.build) / "bump2d.fmu", Path(args.out) / "bump2d", args.stop_time or 15.0)
+        return simulate.main(Path(args.build) / "bump2d.fmu", Path(args.out) / "bump2d", args.stop_time or 15.0,
+                             video=not args.no_video)
     try:
         mod = scenario.load(args.scene)
         mod.run(out_dir=str(Path(args.out) / args.scene), build_dir=args.build, stop_time=args.stop_time,
-                quiet=args.quiet)
+                quiet=args.quiet, watch=not args.no_video)
     except scenario.ScenarioError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -89,6 +90,8 @@ def main(argv=None):
     s.add_argument("--out", default="out")
     s.add_argument("--stop-time", type=float, default=None, help="s (default: the scenario's own)")
     s.add_argument("--quiet", action="store_true", help="no progress, no summary")
+    s.add_argument("--no-video", action="store_true",
+                   help="no animation.gif / view.html (cedra.run.watch), only the CSV and plots")
     c = sub.add_parser("compare", help="compliant vs rigid contact on the bump (same torques)")
     c.add_argument("--build", default="build")
     c.add_argument("--out", default="out/compare")
