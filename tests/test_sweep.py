@@ -202,3 +202,40 @@ def test_external_scheduler_gives_the_local_table(tmp_path, bump2d_fmu):
         for p in reversed(procs):
             p.terminate()
             p.wait(timeout=30)
+
+
+# ------------------------------------------------------------------ the climbing map against single runs
+
+R_W = 0.065
+# three points of the shipped map (examples/sweeps/climb.toml): one that climbs (next to the paper's case), one
+# that fails (a high bump with little friction: stuck), one at the edge (climbs, its next higher neighbour fails)
+MAP_POINTS = {"climbs": (7, 0.14625, 0.8), "fails": (9, 0.26, 0.2), "edge": (5, 0.26, 0.2)}
+
+
+def test_climbing_map_agrees_with_single_runs(tmp_path, bump2d_fmu):
+    import numpy as np
+    from cedra.run.simulate import run_bump
+    shipped = load(sw_mod.resolve("climb"))
+    heights = shipped.grid["terrain_h"]
+    sw = load(sw_mod.resolve("climb"))
+    sw.out = tmp_path / "out"
+    points = {k: dict(tau_max=4.0, terrain_h=heights[i], terrain_w=w, mu=mu) for k, (i, w, mu) in MAP_POINTS.items()}
+    sw.grid = {"terrain_h": sorted({p["terrain_h"] for p in points.values()} | {heights[6]}),
+               "terrain_w": [0.14625, 0.26], "mu": [0.2, 0.8]}
+    execute(sw, BUILD, workers=2, quiet=True)
+    table = {r["id"]: r for r in read_table(sw.table)}
+    map_ids = {shipped.run_id(p) for p in shipped.runs()}
+    edge_above = dict(points["edge"], terrain_h=heights[6])
+    verdicts = {}
+    for name, p in list(points.items()) + [("edge_above", edge_above)]:
+        assert sw.run_id(p) in map_ids                      # the same run as the shipped map's
+        verdicts[name] = table[sw.run_id(p)]["climbed"]
+    assert verdicts == {"climbs": "1", "fails": "0", "edge": "1", "edge_above": "0"}
+    # alone, through the main job's own loop (no early stop, the full 20 s): past the bump's end or not
+    for name, p in points.items():
+        names, rows, _, info = run_bump(bump2d_fmu, shipped.stop_time,
+                                        {k: v for k, v in p.items() if k != "tau_max"})
+        assert info["ok"], info["messages"][-2:]
+        goal = 1.0 + 2.5 * p["terrain_w"]
+        cx = rows[-1][[names.index(f"wheel[{i}].cx") for i in range(1, 7)]]
+        assert int(np.min(cx) > goal) == int(verdicts[name]), (name, cx, goal)

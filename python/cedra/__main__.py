@@ -110,6 +110,7 @@ def main(argv=None):
     r.add_argument("--build", default="build")
     r.add_argument("--out", default="out/report")
     r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")
+    r.add_argument("--quiet", action="store_true", help="no per-run lines, no progress (the report and summary only)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
     add_fuzz_parser(sub)
