@@ -71,6 +71,11 @@ def cmd_report(args):
     return r.main(args)
 
 
+def cmd_sweep(args):
+    from cedra.run import sweep
+    return sweep.main(args)
+
+
 def cmd_fuzz(args):
     from cedra.fmu import fuzz
     return fuzz.main(args)
@@ -108,11 +113,14 @@ def main(argv=None):
     r.add_argument("--build", default="build")
     r.add_argument("--out", default="out/report")
     r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")
+    r.add_argument("--quiet", action="store_true", help="no per-run lines, no progress (the report and summary only)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
+    from cedra.run.sweep import add_parser as add_sweep_parser
     add_fuzz_parser(sub)
+    add_sweep_parser(sub)
     args = ap.parse_args(argv)
     commands = {"build": cmd_build, "simulate": cmd_simulate, "compare": cmd_compare, "bench": cmd_bench,
-                "report": cmd_report, "fuzz": cmd_fuzz}
+                "report": cmd_report, "fuzz": cmd_fuzz, "sweep": cmd_sweep}
     return commands[args.cmd](args)
 
 
