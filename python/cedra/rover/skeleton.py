@@ -37,7 +37,8 @@ COORDS = ["body.x", "body.y", "body.z", "body.yaw", "body.pitch", "body.roll", "
 PARAMS = ["R_w", "bogie_x", "bogie_y", "bogie_z", "bogie_half", "rear_x", "rear_z", "fork_ax", "fork_az", "fork_bx",
           "fork_bz", "fork_a", "fork_b", "fork_c", "fork_wheel"]
 # what a run must record for the drawing (besides time); 2D runs lack y, yaw, roll and steering: they are 0
-NEEDED = ["body.x", "body.z", "body.pitch", "bogie.theta[1]", "fork.theta4"] + [f"wheel[{i}].omega" for i in range(1, 7)]
+NEEDED = (["body.x", "body.z", "body.pitch", "bogie.theta[1]", "fork.theta4"] +
+          [f"wheel[{i}].omega" for i in range(1, 7)])
 
 
 @dataclass
@@ -72,7 +73,8 @@ def _function() -> ca.Function:
            for k in range(8)]
     pts = {f"box{k}": b for k, b in enumerate(box)}
     wheels, frames = {}, {}
-    for side, th, (front, rear), name in ((1, q["bogie.theta[1]"], (1, 2), "L"), (-1, q["bogie.theta[2]"], (3, 4), "R")):
+    bogies = ((1, q["bogie.theta[1]"], (1, 2), "L"), (-1, q["bogie.theta[2]"], (3, 4), "R"))
+    for side, th, (front, rear), name in bogies:
         pivot = ca.vertcat(p["bogie_x"], side * p["bogie_y"], p["bogie_z"])
         Rb = rot_y(-th)
         pts[f"P_{name}"] = world(pivot)
