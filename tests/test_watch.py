@@ -156,3 +156,21 @@ def test_main_job_writes_the_animation_and_the_page(tmp_path):
     assert r.returncode == 0, r.stderr
     files = {p.name for p in (tmp_path / "b" / "bump2d").iterdir()}
     assert files == {"bump2d.csv", "forces.png", "path.png"}, files
+
+
+def test_watch_a_csv(tmp_path):
+    """`python -m cedra watch <csv> --fmu` (the main job's CSV); a CSV without the drawing's outputs is refused
+    naming them."""
+    r = subprocess.run([sys.executable, "-m", "cedra", "simulate", "bump2d", "--stop-time", "1", "--build",
+                        str(BUILD), "--out", str(tmp_path), "--no-video"], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 0, r.stderr
+    csv = tmp_path / "bump2d" / "bump2d.csv"
+    r = subprocess.run([sys.executable, "-m", "cedra", "watch", str(csv), "--fmu", str(BUILD / "bump2d.fmu")],
+                       capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 0, r.stderr
+    assert (csv.parent / "view.html").exists() and (csv.parent / f"animation.{watch.video_format()}").exists()
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time,body.x\n0,0\n0.01,0.001\n")
+    r = subprocess.run([sys.executable, "-m", "cedra", "watch", str(bad), "--fmu", str(BUILD / "bump2d.fmu")],
+                       capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 2 and "did not record" in r.stderr and "fork.theta4" in r.stderr, r.stderr

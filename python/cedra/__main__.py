@@ -71,6 +71,11 @@ def cmd_report(args):
     return r.main(args)
 
 
+def cmd_watch(args):
+    from cedra.run import watch
+    return watch.main(args)
+
+
 def cmd_sweep(args):
     from cedra.run import sweep
     return sweep.main(args)
@@ -116,11 +121,13 @@ def main(argv=None):
     r.add_argument("--quiet", action="store_true", help="no per-run lines, no progress (the report and summary only)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
+    from cedra.run.watch import add_parser as add_watch_parser
     add_fuzz_parser(sub)
     add_sweep_parser(sub)
+    add_watch_parser(sub)
     args = ap.parse_args(argv)
     commands = {"build": cmd_build, "simulate": cmd_simulate, "compare": cmd_compare, "bench": cmd_bench,
-                "report": cmd_report, "fuzz": cmd_fuzz, "sweep": cmd_sweep}
+                "report": cmd_report, "fuzz": cmd_fuzz, "sweep": cmd_sweep, "watch": cmd_watch}
     return commands[args.cmd](args)
 
 

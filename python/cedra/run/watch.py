@@ -2,6 +2,7 @@
 run, from its recorded outputs.
 
     paths = watch(out_dir, names, rows, fmu_path)      # names: "time" + outputs, rows: one per sample
+    python -m cedra watch out/turn_flat/turn_flat.csv --fmu build/flat3d.fmu      # from a run's CSV
 
 * `animation.gif` (or `animation.mp4` when ffmpeg is on PATH): the rover in the X-Z plane (body box, bogies,
   four-bar and struts as lines, wheels as circles with a spoke turning at the wheel's spin angle, the ground force
@@ -333,3 +334,41 @@ def watch(out_dir, names, rows, fmu_path, title: str = "", video: bool | None = 
         out["view"] = view_html(view_data(cols, p, terrain, title=title, planar=planar), out_dir / f"{stem}view.html")
         out["seconds"]["view"] = time.perf_counter() - t0
     return out
+
+
+# ---------------------------------------------------------------- from a CSV: python -m cedra watch
+def read_csv(path) -> tuple[list[str], np.ndarray]:
+    """A run's CSV (a header of names, then one row of numbers per sample, as the runs write them)."""
+    import csv
+    with open(path, newline="") as fh:
+        reader = csv.reader(fh)
+        names = next(reader)
+        rows = np.array([[float(v) for v in r] for r in reader if r])
+    return names, rows
+
+
+def add_parser(sub):
+    p = sub.add_parser("watch", help="animation.gif and view.html of a run's CSV (the runs write them already)")
+    p.add_argument("csv", help="a run's CSV with time and the outputs in cedra.run.watch.WATCHED")
+    p.add_argument("--fmu", default="build/bump2d.fmu", help="the plant FMU that made it (its parameters and "
+                   "terrain; default build/bump2d.fmu)")
+    p.add_argument("--out", help="directory (default: the CSV's)")
+    p.add_argument("--title", default="")
+    p.add_argument("--video", choices=["auto", "yes", "no"], default="auto",
+                   help="the side-view animation: auto = for 2D runs")
+
+
+def main(args) -> int:
+    import sys
+    names, rows = read_csv(args.csv)
+    video = None if args.video == "auto" else args.video == "yes"
+    try:
+        w = watch(args.out or Path(args.csv).parent, names, rows, args.fmu, title=args.title or Path(args.csv).stem,
+                  video=video)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    for key in ("animation", "view"):
+        if key in w:
+            print(f"wrote {w[key]} ({w[key].stat().st_size / 1e6:.2f} MB, {w['seconds'][key]:.1f} s)")
+    return 0
