@@ -52,7 +52,8 @@ class Chromium:
         self.proc = subprocess.Popen(
             [chromium_path(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
              "--disable-background-networking", "--disable-component-update", "--disable-sync",
-             "--disable-default-apps", "--mute-audio", "--hide-scrollbars", f"--user-data-dir={profile}",
+             "--disable-default-apps", "--disable-dev-shm-usage", "--mute-audio", "--hide-scrollbars",
+             f"--user-data-dir={profile}",
              "--remote-debugging-port=0", f"--window-size={SIZE[0]},{SIZE[1]}", "about:blank"],
             stdout=subprocess.DEVNULL, stderr=self.log)
         port_file = profile / "DevToolsActivePort"
