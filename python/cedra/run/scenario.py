@@ -53,6 +53,20 @@ def run_loop(loop, label: str, stop_time: float, step: float, commands, record, 
     return r
 
 
+def parameters(declared: dict, given: dict | None) -> dict:
+    """A scenario's parameter values: its PARAMETERS' defaults (name -> (default, min, max, meaning)) updated by
+    `given` (a sweep's run); ScenarioError for an unknown name or a value out of range."""
+    values = {k: d[0] for k, d in declared.items()}
+    for k, v in (given or {}).items():
+        if k not in declared:
+            raise ScenarioError(f"unknown parameter {k!r} (parameters: {', '.join(declared)})")
+        lo, hi = declared[k][1], declared[k][2]
+        if not lo <= v <= hi:
+            raise ScenarioError(f"{k} = {v:g} is outside [{lo:g}, {hi:g}]")
+        values[k] = float(v)
+    return values
+
+
 def write_csv(path, names, rows) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
