@@ -46,6 +46,7 @@ BAD = [
     ("stop_tim = 3\n[grid]\nmu = [0.5]\n", "stop_tim", "unknown key"),
     ("[fixed]\nmu = 0.5\n[grid]\nmu = [0.5]\n", "grid.mu", "already set in [fixed]"),
     ("", "grid", "nothing to vary"),
+    ("scenario = 'turn_flat'\n[grid]\nmu = [0.5]\n", "scene", "not both"),
 ]
 
 
@@ -239,3 +240,40 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, bump2d_fmu):
         goal = 1.0 + 2.5 * p["terrain_w"]
         cx = rows[-1][[names.index(f"wheel[{i}].cx") for i in range(1, 7)]]
         assert int(np.min(cx) > goal) == int(verdicts[name]), (name, cx, goal)
+
+
+# ------------------------------------------------------------------ a scenario script as the run
+
+def test_scenario_sweep(tmp_path):
+    path = write(tmp_path, """
+        scenario = "turn_flat"
+        stop_time = 12.0
+        out = "OUT"
+        [grid]
+        yaw_rate_cmd = [0.3, 0.5]
+        """)
+    sw = load(path)
+    assert sw.outputs == ["yaw_rate", "speed", "radius", "commanded_radius"]
+    counts = execute(sw, BUILD, workers=2, quiet=True)
+    assert counts == dict(total=2, skipped=0, ran=2, failed=0)
+    for r in read_table(sw.table):
+        assert r["status"] == "ok", r["reason"]
+        # each run got its own parameter: the turn holds that run's commanded yaw rate (within 5 % after 6 s)
+        cmd = float(r["yaw_rate_cmd"])
+        assert float(r["commanded_radius"]) == pytest.approx(0.2 / cmd, rel=1e-9)
+        assert abs(float(r["yaw_rate"]) - cmd) < 0.05 * cmd, r
+
+
+@pytest.mark.parametrize("body,key,reason", [
+    ("scenario = 'turn_flat'\n[grid]\nterrain_h = [0.1]\n", "grid.terrain_h",
+     "unknown parameter 'terrain_h' of scenario turn_flat"),
+    ("scenario = 'turn_flat'\n[grid]\nyaw_rate_cmd = [0.0]\n", "grid.yaw_rate_cmd", "outside the range"),
+    ("scenario = 'turn_flat'\noutputs = ['Fn']\n[grid]\nmu = [0.5]\n", "outputs[0]", "no output 'Fn'"),
+    ("scenario = 'drop'\n[grid]\nmu = [0.5]\n", "scenario", "does not declare PARAMETERS"),
+    ("scenario = 'nope'\n[grid]\nmu = [0.5]\n", "scenario", "unknown scenario 'nope'"),
+])
+def test_bad_scenario_sweep(tmp_path, body, key, reason):
+    path = write(tmp_path, body)
+    with pytest.raises(SweepError) as e:
+        load(path)
+    assert str(e.value).startswith(f"{path}: {key}: ") and reason in str(e.value), str(e.value)

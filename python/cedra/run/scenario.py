@@ -3,7 +3,8 @@ a couple of seconds, CSV output, and the registry behind `python -m cedra simula
 
 A scenario script is a short module in examples/ with a docstring (its first line is the --list entry) and
     run(out_dir="out/<name>", build_dir="build", stop_time=None, quiet=False, watch=True) -> dict   (the summary)
-(watch: also the run's view.html, and animation.gif for 2D runs: `watch_run` below; `--no-video` turns it off.)
+(watch: also the run's view.html, and animation.gif for 2D runs: `watch_run` below; `--no-video` turns it off; a
+script that a sweep runs with `params=` leaves it off for those runs, as turn_flat does.)
 Copy one, edit its numbers, run it: `python examples/<name>.py` or `python -m cedra simulate <name>`.
 """
 from __future__ import annotations
@@ -52,6 +53,20 @@ def run_loop(loop, label: str, stop_time: float, step: float, commands, record, 
     if not r.ok:
         raise RuntimeError(f"{label} stopped early: " + "; ".join(r.messages[-2:]))
     return r
+
+
+def parameters(declared: dict, given: dict | None) -> dict:
+    """A scenario's parameter values: its PARAMETERS' defaults (name -> (default, min, max, meaning)) updated by
+    `given` (a sweep's run); ScenarioError for an unknown name or a value out of range."""
+    values = {k: d[0] for k, d in declared.items()}
+    for k, v in (given or {}).items():
+        if k not in declared:
+            raise ScenarioError(f"unknown parameter {k!r} (parameters: {', '.join(declared)})")
+        lo, hi = declared[k][1], declared[k][2]
+        if not lo <= v <= hi:
+            raise ScenarioError(f"{k} = {v:g} is outside [{lo:g}, {hi:g}]")
+        values[k] = float(v)
+    return values
 
 
 def write_csv(path, names, rows) -> Path:

@@ -1,10 +1,11 @@
 """Scenario sweeps on Dask: `python -m cedra sweep <sweep.toml> [--scheduler tcp://host:port] [--workers N]
 [--resume | --overwrite] [--quiet]`.
 
-A sweep file names a scene, the parameters to vary (a grid and/or seeded random samples), the summary outputs to
-keep per run and where to write them:
+A sweep file names what one run runs, the parameters to vary (a grid and/or seeded random samples), the summary
+outputs to keep per run and where to write them:
 
-    scene = "bump2d"                 # a shipped scene, or a scene file (relative to the sweep file)
+    scene = "bump2d"                 # a shipped scene, or a scene file (relative to the sweep file); or instead
+    # scenario = "turn_flat"         # a scenario script of examples/ that declares PARAMETERS, SUMMARY and FMUS
     stop_time = 15.0                 # s simulated per run (default: the scene's)
     outputs = ["climbed", "t_over", "peak_Fn", "final_x"]     # default: all of OUTPUTS
     out = "out/climb"                # the table: <out>/<name>.csv (relative to the working directory)
@@ -19,15 +20,17 @@ keep per run and where to write them:
     seed = 1
     ground_k = [5e4, 2e5]
 
-With both [grid] and [random], every grid point is combined with every draw. Parameters are the scene FMU's inputs
-and parameters (mu, terrain_h, terrain_w, ground_k, start.yaw, ...) and the main job's controller settings
-(CONTROLLER: tau_max, v_ref); each run is the main job's run (spec section 10: a PI speed loop, equal torques
-clipped at tau_max) on that scene. A bad sweep file fails before any run (and before any build) naming the file,
+With both [grid] and [random], every grid point is combined with every draw. For a scene, the parameters are the
+scene FMU's inputs and parameters (mu, terrain_h, terrain_w, ground_k, start.yaw, ...) and the main job's
+controller settings (CONTROLLER: tau_max, v_ref); each run is the main job's run (spec section 10: a PI speed loop,
+equal torques clipped at tau_max) on that scene, summarized as OUTPUTS. For a scenario script, the parameters and
+outputs are its own PARAMETERS and SUMMARY, and each run is its run(params=...). A bad sweep file fails before any run (and before any build) naming the file,
 the key and the reason.
 
 Runs execute on Dask: a LocalCluster with one single-threaded worker process per core by default, or an existing
 cluster with --scheduler (the same code; the workers need this package installed, e.g. `pip install -e .` in a
-clone of the same commit; the FMU is sent to them, no shared disk is needed). Results are appended to the CSV as
+clone of the same commit; a scene's FMU is sent to them, no shared disk is needed; a scenario script reads its
+FMUs from the build directory, which the workers then need at the same path). Results are appended to the CSV as
 runs finish, so an interrupted sweep loses nothing, and --resume runs only the runs missing from the table (a run
 is identified by a hash of its scene, stop time and parameter values). A run that fails (the FMU refuses a step,
 the run times out, or its worker process dies) is recorded with its status and reason and the sweep goes on.
@@ -75,7 +78,7 @@ class SweepError(ValueError):
 class Sweep:
     path: Path
     name: str
-    scene: str                       # shipped scene name or a scene file path
+    target: "Target"                 # what one run runs: a scene's main-job run or a scenario script
     stop_time: float
     outputs: list[str]
     out: Path
@@ -107,7 +110,8 @@ class Sweep:
         return [{**self.fixed, **p, **d} for p in points for d in draws]
 
     def run_id(self, params: dict) -> str:
-        key = json.dumps({"scene": self.scene, "stop_time": self.stop_time, "params": params}, sort_keys=True)
+        key = json.dumps({self.target.kind: self.target.name, "stop_time": self.stop_time, "params": params},
+                         sort_keys=True)
         return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
@@ -168,6 +172,39 @@ def settable(scene) -> dict[str, tuple]:
     return out
 
 
+@dataclass
+class Target:
+    """What a sweep's run runs. kind "scene": the main job's run on a scene's FMU (the FMU's bytes go to the
+    workers); kind "scenario": a scenario script of examples/ that declares PARAMETERS and SUMMARY (its run() is
+    called with params=; the workers need this checkout and its build directory at the same path)."""
+    kind: str
+    name: str
+    limits: dict          # parameter -> (min, max)
+    outputs: dict         # output -> meaning
+    stop_time: float      # default
+    scene: object = None  # kind "scene": the Scene
+    fmus: tuple = ()      # kind "scenario": the FMUs its run() opens (built before the runs start)
+
+
+def _scene_target(path: Path, name: str) -> Target:
+    scene = _scene(path, name)
+    return Target("scene", name, settable(scene), OUTPUTS, scene.stop_time, scene)
+
+
+def _scenario_target(path: Path, name: str) -> Target:
+    from cedra.run.scenario import ScenarioError, load as load_scenario
+    try:
+        mod = load_scenario(name)
+    except ScenarioError as e:
+        _fail(path, "scenario", str(e))
+    if not all(isinstance(getattr(mod, a, None), c) for a, c in (("PARAMETERS", dict), ("SUMMARY", dict),
+                                                                   ("FMUS", tuple))):
+        _fail(path, "scenario", f"{name!r} does not declare PARAMETERS, SUMMARY and FMUS: it cannot be swept (see "
+              f"examples/turn_flat.py for the pattern)")
+    limits = {k: (d[1], d[2]) for k, d in mod.PARAMETERS.items()}
+    return Target("scenario", name, limits, dict(mod.SUMMARY), float(mod.STOP_TIME), fmus=mod.FMUS)
+
+
 def load(path) -> Sweep:
     path = Path(path)
     try:
@@ -176,34 +213,41 @@ def load(path) -> Sweep:
         raise SweepError(f"{path}: cannot read: {e.strerror}") from None
     except tomllib.TOMLDecodeError as e:
         raise SweepError(f"{path}: not valid TOML: {e}") from None
-    known = {"name", "scene", "stop_time", "outputs", "out", "run_timeout", "fixed", "grid", "random", "map"}
+    known = {"name", "scene", "scenario", "stop_time", "outputs", "out", "run_timeout", "fixed", "grid", "random",
+             "map"}
     for key in data:
         if key not in known:
             _fail(path, key, f"unknown key (known: {', '.join(sorted(known))})")
-    if "scene" not in data:
-        _fail(path, "scene", "missing: the scene to run")
-    scene = _scene(path, data["scene"])
-    stop_time = _finite(path, "stop_time", data.get("stop_time", scene.stop_time))
+    if ("scene" in data) == ("scenario" in data):
+        _fail(path, "scene", "give either scene (a scene's main-job run) or scenario (a scenario script), not both"
+              if "scene" in data else "missing: the scene or the scenario to run")
+    for key in ("scene", "scenario"):
+        if key in data and not isinstance(data[key], str):
+            _fail(path, key, f"expected a name, got {data[key]!r}")
+    target = _scene_target(path, data["scene"]) if "scene" in data else _scenario_target(path, data["scenario"])
+    stop_time = _finite(path, "stop_time", data.get("stop_time", target.stop_time))
     if stop_time <= 0:
         _fail(path, "stop_time", f"must be > 0, got {stop_time:g}")
     timeout = _finite(path, "run_timeout", data.get("run_timeout", RUN_TIMEOUT))
     if timeout <= 0:
         _fail(path, "run_timeout", f"must be > 0, got {timeout:g}")
-    outputs = data.get("outputs", list(OUTPUTS))
+    outputs = data.get("outputs", list(target.outputs))
     if not isinstance(outputs, list) or not outputs:
         _fail(path, "outputs", "expected a non-empty list of output names")
     for k, o in enumerate(outputs):
-        if o not in OUTPUTS:
-            _fail(path, f"outputs[{k}]", f"no output {o!r} (outputs: {', '.join(OUTPUTS)})")
-    sw = Sweep(path=path, name=str(data.get("name", path.stem)), scene=data["scene"], stop_time=stop_time,
+        if o not in target.outputs:
+            _fail(path, f"outputs[{k}]", f"no output {o!r} (outputs: {', '.join(target.outputs)})")
+    sw = Sweep(path=path, name=str(data.get("name", path.stem)), target=target, stop_time=stop_time,
                outputs=list(outputs), out=Path(data.get("out", f"out/{data.get('name', path.stem)}")),
                run_timeout=timeout)
-    limits = settable(scene)
+    limits = target.limits
+    for name in set(limits) & set(target.outputs):      # a table column each: the names must differ
+        _fail(path, "scenario", f"{target.name} has a parameter and an output both named {name!r}")
     seen = {}
 
     def check_name(key, name):
         if name not in limits:
-            _fail(path, key, f"unknown parameter {name!r} of scene {scene.name} "
+            _fail(path, key, f"unknown parameter {name!r} of {target.kind} {target.name} "
                   f"(parameters: {', '.join(sorted(limits))})")
         if name in seen:
             _fail(path, key, f"{name} is already set in [{seen[name]}]")
@@ -347,6 +391,25 @@ def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout
     return s
 
 
+def run_scenario(name: str, build_dir: str, params: dict, stop_time: float, outputs: list) -> dict:
+    """A scenario script's run() with these parameter values, in a scratch directory; its SUMMARY numbers."""
+    from cedra.run.scenario import load as load_scenario
+    wall = time.perf_counter()
+    s = {o: math.nan for o in outputs} | dict(status="ok", reason="")
+    try:
+        with tempfile.TemporaryDirectory(prefix=f"cedra-sweep-{name}-") as tmp:
+            summary = load_scenario(name).run(out_dir=tmp, build_dir=build_dir, stop_time=stop_time, quiet=True,
+                                              params=params)
+        missing = [o for o in outputs if o not in summary]
+        if missing:
+            raise KeyError(f"run() returned no {', '.join(missing)}")
+        s.update({o: float(summary[o]) for o in outputs})
+    except Exception as e:                        # the run stopped early (RuntimeError with the FMUs' messages)
+        s["status"], s["reason"] = "error", f"{type(e).__name__}: {e}"[:300]
+    s["wall_s"] = time.perf_counter() - wall
+    return s
+
+
 # ------------------------------------------------------------------ the sweep (on the client)
 
 def columns(sw: Sweep) -> list[str]:
@@ -394,8 +457,7 @@ def execute(sw: Sweep, build_dir="build", scheduler: str | None = None, workers:
     if not todo:
         return counts
 
-    fmu_bytes = Path(_build(sw, build_dir)).read_bytes()
-    kind = _scene(sw.path, sw.scene).options.terrain
+    fmu_bytes = Path(_build(sw, build_dir)).read_bytes() if sw.target.kind == "scene" else None
     table.parent.mkdir(parents=True, exist_ok=True)
     fresh = not done_rows
     fh = open(table, "w" if fresh else "a", newline="")
@@ -412,15 +474,24 @@ def execute(sw: Sweep, build_dir="build", scheduler: str | None = None, workers:
         client = Client(cluster)
     progress = Progress(len(todo), f"sweep {sw.name}", unit="runs", quiet=quiet, after=0.0)
     try:
-        data = client.scatter(fmu_bytes, broadcast=True, hash=False)
-        futures = {client.submit(run_one, data, kind, p, sw.stop_time, sw.run_timeout, key=f"run-{i}", pure=False):
-                   (i, p) for i, p in todo}
+        if sw.target.kind == "scene":
+            data = client.scatter(fmu_bytes, broadcast=True, hash=False)
+            kind = sw.target.scene.options.terrain
+            futures = {client.submit(run_one, data, kind, p, sw.stop_time, sw.run_timeout, key=f"run-{i}",
+                                     pure=False): (i, p) for i, p in todo}
+        else:
+            from cedra.run.scenario import fmu
+            for name in sw.target.fmus:          # built here, once, not by several workers at a time
+                fmu(name, build_dir)
+            build = str(Path(build_dir).resolve())
+            futures = {client.submit(run_scenario, sw.target.name, build, p, sw.stop_time, sw.outputs,
+                                     key=f"run-{i}", pure=False): (i, p) for i, p in todo}
         for fut in as_completed(futures):
             i, p = futures[fut]
             try:
                 r = fut.result()
             except Exception as e:       # the worker died running it (KilledWorker) or the task could not run
-                r = {o: math.nan for o in OUTPUTS}
+                r = {o: math.nan for o in sw.outputs}
                 r.update(status="failed", reason=f"{type(e).__name__}: {e}"[:300], wall_s=math.nan)
             row = {"id": i, **p, **r}
             writer.writerow([_fmt(row.get(c, "")) for c in cols])
@@ -442,10 +513,10 @@ def execute(sw: Sweep, build_dir="build", scheduler: str | None = None, workers:
 def _build(sw: Sweep, build_dir) -> Path:
     from cedra.models.scene import shipped
     from cedra.run.scenario import fmu
-    if sw.scene in shipped():
-        return fmu(sw.scene, build_dir)
+    if sw.target.name in shipped():
+        return fmu(sw.target.name, build_dir)
     from cedra.fmu.packaging import build_fmu
-    return build_fmu(_scene(sw.path, sw.scene).spec(), build_dir)
+    return build_fmu(sw.target.scene.spec(), build_dir)
 
 
 # ------------------------------------------------------------------ command line

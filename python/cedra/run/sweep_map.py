@@ -98,7 +98,7 @@ def draw(sw, rows: list[dict] | None = None) -> Path:
     handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in cmap.colors]
     fig.legend(handles, [f"{spec['verdict']}: no", f"{spec['verdict']}: yes", "run failed"], loc="upper right",
                ncol=3, fontsize=8)
-    fig.suptitle(spec.get("title", f"{sw.name}: {spec['verdict']} ({len(rows)} runs of scene {sw.scene})"),
+    fig.suptitle(spec.get("title", f"{sw.name}: {spec['verdict']} ({len(rows)} runs of {sw.target.kind} {sw.target.name})"),
                  x=0.02, ha="left", fontsize=11)
     fig.tight_layout(rect=(0, 0, 1, 0.9))
     out = sw.out / f"{sw.name}.png"
