@@ -66,6 +66,8 @@ def cmd_bench(args):
 def cmd_report(args):
     if args.which == "precision":
         from cedra.reports import precision as r
+    elif args.which == "defaults":
+        from cedra.reports import defaults as r
     else:
         from cedra.reports import stability as r
     return r.main(args)
@@ -114,11 +116,12 @@ def main(argv=None):
     be.add_argument("--side-by-side", action="store_true",
                     help="only the MuJoCo side-by-side table (the paper's 15 s run)")
     r = sub.add_parser("report", help="work-precision or stability report")
-    r.add_argument("which", choices=["precision", "stability"])
+    r.add_argument("which", choices=["precision", "stability", "defaults"])
     r.add_argument("--build", default="build")
     r.add_argument("--out", default="out/report")
     r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")
     r.add_argument("--quiet", action="store_true", help="no per-run lines, no progress (the report and summary only)")
+    r.add_argument("--scene", action="append", help="defaults: only this scene (repeatable)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
     from cedra.run.watch import add_parser as add_watch_parser
