@@ -6,7 +6,7 @@ run, from its recorded outputs.
 
 * `animation.gif` (or `animation.mp4` when ffmpeg is on PATH): the rover in the X-Z plane (body box, bogies,
   four-bar and struts as lines, wheels as circles with a spoke turning at the wheel's spin angle, the ground force
-  on each wheel as an arrow, 1 cm per 20 N) over the terrain under Y = 0, the camera following the body, FPS
+  on each wheel as an arrow, 1 cm per 10 N) over the terrain under Y = 0, the camera following the body, FPS
   frames per simulated second, so the GIF plays in real time. For 2D runs (wheels 3, 4 are 1, 2).
 * `view.html`: one self-contained page (no network: the renderer, `view.html` next to this module, is ~300 lines
   of canvas-2D projection and the data is inline JSON): the terrain surface sampled from the FMU's own terrain
