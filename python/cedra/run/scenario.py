@@ -2,7 +2,9 @@
 a couple of seconds, CSV output, and the registry behind `python -m cedra simulate <scenario>` / `--list`.
 
 A scenario script is a short module in examples/ with a docstring (its first line is the --list entry) and
-    run(out_dir="out/<name>", build_dir="build", stop_time=None, quiet=False) -> dict   (the summary)
+    run(out_dir="out/<name>", build_dir="build", stop_time=None, quiet=False, watch=True) -> dict   (the summary)
+(watch: also the run's view.html, and animation.gif for 2D runs: `watch_run` below; `--no-video` turns it off; a
+script that a sweep runs with `params=` leaves it off for those runs, as turn_flat does.)
 Copy one, edit its numbers, run it: `python examples/<name>.py` or `python -m cedra simulate <name>`.
 """
 from __future__ import annotations
@@ -53,6 +55,20 @@ def run_loop(loop, label: str, stop_time: float, step: float, commands, record, 
     return r
 
 
+def parameters(declared: dict, given: dict | None) -> dict:
+    """A scenario's parameter values: its PARAMETERS' defaults (name -> (default, min, max, meaning)) updated by
+    `given` (a sweep's run); ScenarioError for an unknown name or a value out of range."""
+    values = {k: d[0] for k, d in declared.items()}
+    for k, v in (given or {}).items():
+        if k not in declared:
+            raise ScenarioError(f"unknown parameter {k!r} (parameters: {', '.join(declared)})")
+        lo, hi = declared[k][1], declared[k][2]
+        if not lo <= v <= hi:
+            raise ScenarioError(f"{k} = {v:g} is outside [{lo:g}, {hi:g}]")
+        values[k] = float(v)
+    return values
+
+
 def write_csv(path, names, rows) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -62,6 +78,15 @@ def write_csv(path, names, rows) -> Path:
         for r in rows:
             w.writerow([f"{v:.10g}" for v in r])
     return path
+
+
+def watch_run(out_dir, names, rows, fmu_path, title: str, enabled: bool = True, stem: str = "") -> dict:
+    """A run's animation (2D runs) and view.html (cedra.run.watch; the run must have recorded
+    cedra.run.watch.WATCHED), unless disabled; returns what watch() returns ({} when disabled)."""
+    if not enabled:
+        return {}
+    from cedra.run.watch import watch
+    return watch(out_dir, names, rows, fmu_path, title=title, stem=stem)
 
 
 def scenarios() -> dict[str, str]:
