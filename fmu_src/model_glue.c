@@ -68,6 +68,10 @@ struct model_ws {
     /* switch location: s and the held choices at the step's start (cached on (t, x)), s at its end */
     double sw0[DIM(NSW)], sw1[DIM(NSW)], hold[DIM(NH)], hold_tmp[DIM(NH)], sw_t, sw_x[NX];
     int sw_valid;
+    /* the last end evaluation: s at (t_new, x_new) with choices that x_new itself makes (then it is the next
+     * step's start evaluation, when that step starts there) */
+    double swn[DIM(NSW)], swn_t, swn_x[NX];
+    int swn_valid;
     long n_located;                     /* switches located since the last model_take_located */
     int sw_count[DIM(NSW)];             /* times each switch was located since then */
     int loc_which[LOG_LOCATED];
@@ -108,6 +112,7 @@ void model_bind(model_ws *ws, const double *inp, const double *par) {
     ws->inp = inp;
     ws->par = par;
     ws->sw_valid = 0;       /* s at a step's start depends on the inputs: evaluate it again */
+    ws->swn_valid = 0;
 #if CEDRA_RIGID
     ws->have_modes = 0;     /* the first evaluation decides the modes from the state */
     ws->i_mu = find_var("mu", CEDRA_K_INP);
@@ -338,7 +343,15 @@ double model_locate_step(void *ctx, double t, const double *x, double t_new, con
     model_ws *ws = (model_ws *)ctx;
     const double loc_tol = fmax(LOC_TOL, 10 * solver_time_resolution(t_new));
     activate(ws);
-    if (!ws->sw_valid || ws->sw_t != t || memcmp(ws->sw_x, x, sizeof ws->sw_x) != 0) {
+    if (ws->sw_valid && ws->sw_t == t && memcmp(ws->sw_x, x, sizeof ws->sw_x) == 0) {
+        /* the same start as the last call (a retried step) */
+    } else if (ws->swn_valid && ws->swn_t == t && memcmp(ws->swn_x, x, sizeof ws->swn_x) == 0) {
+        /* the end of the last step, evaluated with its own choices: hold stays, s0 is that evaluation */
+        memcpy(ws->sw0, ws->swn, sizeof ws->sw0);
+        ws->sw_t = t;
+        memcpy(ws->sw_x, x, sizeof ws->sw_x);
+        ws->sw_valid = 1;
+    } else {
         /* the step's start: the model's choices there, held over the step, and s relative to them */
         if (eval_switch(ws, x, ws->hold, ws->sw0, ws->hold_tmp)) return -1;
         memcpy(ws->hold, ws->hold_tmp, sizeof ws->hold);
@@ -348,6 +361,12 @@ double model_locate_step(void *ctx, double t, const double *x, double t_new, con
         ws->sw_valid = 1;
     }
     if (eval_switch(ws, x_new, ws->hold, ws->sw1, ws->hold_tmp)) return -1;
+    ws->swn_valid = NH == 0 || memcmp(ws->hold_tmp, ws->hold, sizeof ws->hold) == 0;
+    if (ws->swn_valid) {
+        memcpy(ws->swn, ws->sw1, sizeof ws->swn);
+        ws->swn_t = t_new;
+        memcpy(ws->swn_x, x_new, sizeof ws->swn_x);
+    }
     /* A switch crossed back and forth (a force law sliding along its switch, e.g. a wheel that barely touches)
      * would be located again and again: after MAX_LOCATE locations in one call it is left to the error control
      * for the rest of the call. */
