@@ -171,68 +171,231 @@ void heightmap_release(heightmap *hm, heightmap_free_fn fr) {
 
 /* ---------------------------------------------------------------------------------------------- evaluating */
 
-/* uniform cubic B-spline basis on one cell, t in [0, 1]: b[d][k] = d-th derivative of basis k */
-static void basis(double t, double b[4][4]) {
-    double s = 1.0 - t, t2 = t * t, t3 = t2 * t;
-    b[0][0] = s * s * s / 6.0;
-    b[0][1] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0;
-    b[0][2] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0;
-    b[0][3] = t3 / 6.0;
-    b[1][0] = -0.5 * s * s;
-    b[1][1] = 1.5 * t2 - 2.0 * t;
-    b[1][2] = -1.5 * t2 + t + 0.5;
-    b[1][3] = 0.5 * t2;
-    b[2][0] = s;
-    b[2][1] = 3.0 * t - 2.0;
-    b[2][2] = 1.0 - 3.0 * t;
-    b[2][3] = t;
-    b[3][0] = -1.0;
-    b[3][1] = 3.0;
-    b[3][2] = -3.0;
-    b[3][3] = 1.0;
+/* One cell's polynomial in the power basis: h = sum_{a,b} A[a][b] t^a s^b with (t, s) the cell's local
+ * coordinates (u - i, v - j). Loaded from the cell's 4 x 4 B-spline coefficients once (A = B' C B, B the uniform
+ * cubic B-spline basis in the power basis), then every evaluation in the cell is a few Horner steps: the rim
+ * search evaluates ~20 points per wheel within 2-4 cells. A patch lives on the caller's stack (no shared state). */
+typedef struct {
+    int i, j;               /* the cell; i < 0: nothing loaded */
+    double A[4][4];
+} patch;
+
+/* B[k][a]: coefficient of t^a in the uniform cubic B-spline basis function k on a cell, times 6 */
+static const double BSPLINE[4][4] = {{1, -3, 3, -1}, {4, 0, -6, 3}, {1, 3, 3, -3}, {0, 0, 0, 1}};
+
+static void patch_load(const heightmap *hm, int i, int j, patch *P) {
+    int mx = hm->nx + 2;
+    double T[4][4];                                 /* T[l][a] = sum_k C[l][k] B[k][a] (row l: Y index j + l) */
+    for (int l = 0; l < 4; l++) {
+        const double *row = hm->coef + (size_t)(j + l) * mx + i;
+        for (int a = 0; a < 4; a++)
+            T[l][a] = row[0] * BSPLINE[0][a] + row[1] * BSPLINE[1][a] + row[2] * BSPLINE[2][a] +
+                      row[3] * BSPLINE[3][a];
+    }
+    for (int a = 0; a < 4; a++)
+        for (int b = 0; b < 4; b++)
+            P->A[a][b] = (T[0][a] * BSPLINE[0][b] + T[1][a] * BSPLINE[1][b] + T[2][a] * BSPLINE[2][b] +
+                          T[3][a] * BSPLINE[3][b]) / 36.0;
+    P->i = i;
+    P->j = j;
 }
 
-/* the cell of grid coordinate u (clamped to [0, n-1]; the last node belongs to the last cell) */
+/* the cell of grid coordinate u in [-slack, n - 1 + slack] (clamped; the last node belongs to the last cell) */
 static int cell(double u, int n) {
-    int i = (int)floor(fmin(fmax(u, 0.0), n - 1));
+    int i = u > 0.0 ? (int)u : 0;               /* truncation = floor for u >= 0 */
     return i > n - 2 ? n - 2 : i;
 }
 
-int heightmap_eval(const heightmap *hm, double X, double Y, double *h, double *d1, double *d2, double *d3) {
+/* the patch under (X, Y) (loaded into *P unless it is there already) and the local coordinates; 0, or 1 outside
+ * the grid (within 1e-9 cells of an edge: the edge cell's polynomial) */
+static int locate(const heightmap *hm, double X, double Y, patch *P, double *t, double *s) {
     double u = (X - hm->x0) / hm->dx, v = (Y - hm->y0) / hm->dy;
     const double slack = 1e-9;
     if (!(u >= -slack && u <= hm->nx - 1 + slack && v >= -slack && v <= hm->ny - 1 + slack)) return 1;
-    double bu[4][4], bv[4][4];
     int i = cell(u, hm->nx), j = cell(v, hm->ny);
-    basis(u - i, bu);                              /* within slack of an edge: the edge cell's polynomial */
-    basis(v - j, bv);
-    /* s[a][b] = d^(a+b) h / du^a dv^b for a + b <= 3 */
-    double s[4][4] = {{0}};
-    int mx = hm->nx + 2;
-    for (int l = 0; l < 4; l++) {
-        const double *row = hm->coef + (size_t)(j + l) * mx + i;
-        double r[4] = {0};
-        for (int k = 0; k < 4; k++)
-            for (int a = 0; a < 4; a++) r[a] += bu[a][k] * row[k];
-        for (int a = 0; a < 4; a++)
-            for (int b = 0; a + b < 4; b++) s[a][b] += r[a] * bv[b][l];
+    if (P->i != i || P->j != j) patch_load(hm, i, j, P);
+    *t = u - i;
+    *s = v - j;
+    return 0;
+}
+
+/* d[a][b] = d^(a+b) h / dt^a ds^b at (t, s) for a + b <= order (order <= 3; the rest is left alone) */
+static void patch_eval(const patch *P, double t, double s, int order, double d[4][4]) {
+    const double (*A)[4] = P->A;
+    double r[4][4];                                 /* r[a][b] = d^a/dt^a of sum_a' A[a'][b] t^a' */
+    for (int b = 0; b < 4; b++) {
+        r[0][b] = ((A[3][b] * t + A[2][b]) * t + A[1][b]) * t + A[0][b];
+        if (order >= 1) r[1][b] = (3.0 * A[3][b] * t + 2.0 * A[2][b]) * t + A[1][b];
+        if (order >= 2) r[2][b] = 6.0 * A[3][b] * t + 2.0 * A[2][b];
+        if (order >= 3) r[3][b] = 6.0 * A[3][b];
     }
+    for (int a = 0; a <= order; a++) {
+        const double *ra = r[a];
+        d[a][0] = ((ra[3] * s + ra[2]) * s + ra[1]) * s + ra[0];
+        if (a + 1 <= order) d[a][1] = (3.0 * ra[3] * s + 2.0 * ra[2]) * s + ra[1];
+        if (a + 2 <= order) d[a][2] = 6.0 * ra[3] * s + 2.0 * ra[2];
+        if (a + 3 <= order) d[a][3] = 6.0 * ra[3];
+    }
+}
+
+int heightmap_eval(const heightmap *hm, double X, double Y, double *h, double *d1, double *d2, double *d3) {
+    patch P;
+    double t, s, d[4][4];
+    P.i = -1;
+    if (locate(hm, X, Y, &P, &t, &s)) return 1;
+    patch_eval(&P, t, s, d3 ? 3 : d2 ? 2 : d1 ? 1 : 0, d);
     double ix = 1.0 / hm->dx, iy = 1.0 / hm->dy;
-    if (h) *h = s[0][0];
+    if (h) *h = d[0][0];
     if (d1) {
-        d1[0] = s[1][0] * ix;
-        d1[1] = s[0][1] * iy;
+        d1[0] = d[1][0] * ix;
+        d1[1] = d[0][1] * iy;
     }
     if (d2) {
-        d2[0] = s[2][0] * ix * ix;
-        d2[1] = d2[2] = s[1][1] * ix * iy;
-        d2[3] = s[0][2] * iy * iy;
+        d2[0] = d[2][0] * ix * ix;
+        d2[1] = d2[2] = d[1][1] * ix * iy;
+        d2[3] = d[0][2] * iy * iy;
     }
     if (d3) {
-        double xxx = s[3][0] * ix * ix * ix, xxy = s[2][1] * ix * ix * iy, xyy = s[1][2] * ix * iy * iy,
-               yyy = s[0][3] * iy * iy * iy;
+        double xxx = d[3][0] * ix * ix * ix, xxy = d[2][1] * ix * ix * iy, xyy = d[1][2] * ix * iy * iy,
+               yyy = d[0][3] * iy * iy * iy;
         d3[0] = xxx, d3[1] = xxy, d3[2] = xxy, d3[3] = xyy;       /* d/dX of [h_XX, h_YX, h_XY, h_YY] */
         d3[4] = xxy, d3[5] = xyy, d3[6] = xyy, d3[7] = yyy;       /* d/dY */
+    }
+    return 0;
+}
+
+/* height, gradient and Hessian [h_XX, h_XY, h_YY] at (X, Y) through the caller's patch; 0, or 1 outside */
+static int eval2(const heightmap *hm, double X, double Y, patch *P, double *h, double g[2], double H[3]) {
+    double t, s, d[4][4];
+    if (locate(hm, X, Y, P, &t, &s)) return 1;
+    patch_eval(P, t, s, H ? 2 : g ? 1 : 0, d);
+    *h = d[0][0];
+    if (g) {
+        double ix = 1.0 / hm->dx, iy = 1.0 / hm->dy;
+        g[0] = d[1][0] * ix;
+        g[1] = d[0][1] * iy;
+        if (H) {
+            H[0] = d[2][0] * ix * ix;
+            H[1] = d[1][1] * ix * iy;
+            H[2] = d[0][2] * iy * iy;
+        }
+    }
+    return 0;
+}
+
+/* ------------------------------------------------------------------------------------- the rim search */
+
+static double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+static void cross3(const double *a, const double *b, double *c) {
+    c[0] = a[1] * b[2] - a[2] * b[1];
+    c[1] = a[2] * b[0] - a[0] * b[2];
+    c[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+#define RIM_NEWTON 4
+
+int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J, double bad[2]) {
+    const double *c = x, *a = x + 3, R = x[6];
+    patch P;
+    P.i = -1;
+    double h0, g0[2], H0[3];
+    if (eval2(hm, c[0], c[1], &P, &h0, g0, H0)) {
+        bad[0] = c[0], bad[1] = c[1];
+        return 1;
+    }
+    /* the frame: n0 the unit normal under the center, t its part perpendicular to the axle, r1 = -t/|t|,
+     * r2 = a x r1 (contact.rim_point's formulas, operation for operation where it matters) */
+    double m[3] = {-g0[0], -g0[1], 1.0}, mn = sqrt(dot3(m, m)), n0[3], t[3], r1[3], r2[3];
+    for (int k = 0; k < 3; k++) n0[k] = m[k] / mn;
+    double na = dot3(n0, a);
+    for (int k = 0; k < 3; k++) t[k] = n0[k] - na * a[k];
+    double tn = sqrt(dot3(t, t));
+    for (int k = 0; k < 3; k++) r1[k] = -(t[k] / tn);
+    cross3(a, r1, r2);
+    /* 13 samples of g(beta) = h(p) - p_Z on the lower half of the rim: beta = 0 first, then k = -6..6 */
+    static const int ORDER[13] = {0, -6, -5, -4, -3, -2, -1, 1, 2, 3, 4, 5, 6};
+    /* cos and sin of k pi / 12, k = 0..6, as the C library gives them (and CasADi folded them before) */
+    static const double COS[7] = {1.0, 0.96592582628906831, 0.86602540378443871, 0.70710678118654757,
+                                  0.50000000000000011, 0.25881904510252074, 6.123233995736766e-17};
+    static const double SIN[7] = {0.0, 0.25881904510252074, 0.49999999999999994, 0.70710678118654746,
+                                  0.8660254037844386, 0.96592582628906831, 1.0};
+    const double pi = 3.14159265358979323846;
+    double best_b = 0.0, best_g = 0.0;
+    for (int kk = 0; kk < 13; kk++) {
+        int k = ORDER[kk], ka = k < 0 ? -k : k;
+        double b = k * pi / 12, cb = COS[ka], sb = k < 0 ? -SIN[ka] : SIN[ka], p[3], h;
+        for (int i = 0; i < 3; i++) p[i] = c[i] + R * (cb * r1[i] + sb * r2[i]);
+        if (eval2(hm, p[0], p[1], &P, &h, NULL, NULL)) {
+            bad[0] = p[0], bad[1] = p[1];
+            return 1;
+        }
+        double g = h - p[2];
+        if (kk == 0 || g > best_g) best_b = b, best_g = g;
+    }
+    /* Newton on g'(beta) = 0, never toward a minimum (a step only where g'' < 0); then the final point */
+    double b = best_b, p[3], dp[3], h, g[2], H[3], d1 = 0.0, d2 = 0.0, cb = 0.0, sb = 0.0;
+    for (int it = 0; it <= RIM_NEWTON; it++) {
+        cb = cos(b), sb = sin(b);
+        for (int i = 0; i < 3; i++) {
+            p[i] = c[i] + R * (cb * r1[i] + sb * r2[i]);
+            dp[i] = R * (-sb * r1[i] + cb * r2[i]);
+        }
+        if (eval2(hm, p[0], p[1], &P, &h, g, H)) {
+            bad[0] = p[0], bad[1] = p[1];
+            return 1;
+        }
+        double ddp[3] = {c[0] - p[0], c[1] - p[1], c[2] - p[2]};
+        d1 = g[0] * dp[0] + g[1] * dp[1] - dp[2];
+        d2 = dp[0] * (H[0] * dp[0] + H[1] * dp[1]) + dp[1] * (H[1] * dp[0] + H[2] * dp[1]) + g[0] * ddp[0] +
+             g[1] * ddp[1] - ddp[2];
+        if (it == RIM_NEWTON) break;                  /* the final point: p, h, g, H, d2 are its */
+        if (d2 < 0) b = b - d1 / d2;
+    }
+    e[0] = p[0], e[1] = p[1], e[2] = p[2], e[3] = h, e[4] = g[0], e[5] = g[1];
+    if (!J) return 0;
+    /* The Jacobian d e / d x, x = [c, a, R]. At the final beta where g'' < 0 the point is the rim's tangency
+     * point (g'(beta) = 0): the implicit function theorem gives d beta = -(d g' at fixed beta) / g'', so p's
+     * derivative is the derivative of the stationary point itself, whatever frame beta is measured in (exact
+     * when Newton has converged, which 4 steps from the best of 13 samples do to rounding on smooth ground).
+     * Where g'' >= 0 no step was taken: beta is a sample, constant, and p moves with the frame (r1 follows the
+     * normal under the center: its Hessian). */
+    int implicit = d2 < 0;
+    for (int col = 0; col < 7; col++) {
+        double dc[3] = {0, 0, 0}, da[3] = {0, 0, 0}, dR = 0.0;
+        if (col < 3) dc[col] = 1.0;
+        else if (col < 6) da[col - 3] = 1.0;
+        else dR = 1.0;
+        /* d n0 (only c_X, c_Y move it), d t, d r1, d r2 */
+        double dm[3] = {-(H0[0] * dc[0] + H0[1] * dc[1]), -(H0[1] * dc[0] + H0[2] * dc[1]), 0.0};
+        double dn0[3], dmn = dot3(n0, dm);
+        for (int k = 0; k < 3; k++) dn0[k] = (dm[k] - n0[k] * dmn) / mn;
+        double dna = dot3(dn0, a) + dot3(n0, da), dt[3], dr1[3], dr2[3], tmp[3];
+        for (int k = 0; k < 3; k++) dt[k] = dn0[k] - dna * a[k] - na * da[k];
+        double r1dt = dot3(r1, dt);
+        for (int k = 0; k < 3; k++) dr1[k] = -(dt[k] - r1[k] * r1dt) / tn;
+        cross3(da, r1, dr2);
+        cross3(a, dr1, tmp);
+        for (int k = 0; k < 3; k++) dr2[k] += tmp[k];
+        /* at fixed beta: d p and d p' (p' = dp/dbeta) */
+        double dpf[3], ddp1[3];
+        for (int k = 0; k < 3; k++) {
+            dpf[k] = dc[k] + dR * (cb * r1[k] + sb * r2[k]) + R * (cb * dr1[k] + sb * dr2[k]);
+            ddp1[k] = dR * (-sb * r1[k] + cb * r2[k]) + R * (-sb * dr1[k] + cb * dr2[k]);
+        }
+        double dbeta = 0.0;
+        if (implicit) {
+            double Hx = H[0] * dpf[0] + H[1] * dpf[1], Hy = H[1] * dpf[0] + H[2] * dpf[1];
+            double dG = Hx * dp[0] + Hy * dp[1] + g[0] * ddp1[0] + g[1] * ddp1[1] - ddp1[2];
+            dbeta = -dG / d2;
+        }
+        double dpt[3];
+        for (int k = 0; k < 3; k++) dpt[k] = dpf[k] + dp[k] * dbeta;
+        double *Jc = J + 6 * col;
+        Jc[0] = dpt[0], Jc[1] = dpt[1], Jc[2] = dpt[2];
+        Jc[3] = g[0] * dpt[0] + g[1] * dpt[1];
+        Jc[4] = H[0] * dpt[0] + H[1] * dpt[1];
+        Jc[5] = H[1] * dpt[0] + H[2] * dpt[1];
     }
     return 0;
 }
@@ -245,17 +408,18 @@ static __thread heightmap *active;
 
 void heightmap_activate(heightmap *hm) { active = hm; }
 
+static int outside(const double *x) {
+    snprintf(active->msg, sizeof active->msg,
+             "the terrain was evaluated at (X, Y) = (%.6g, %.6g) m, outside the heightmap [%.6g, %.6g] x "
+             "[%.6g, %.6g] m",
+             x[0], x[1], active->x0, active->x0 + (active->nx - 1) * active->dx, active->y0,
+             active->y0 + (active->ny - 1) * active->dy);
+    return 1;
+}
+
 static int eval_active(const double *x, double *h, double *d1, double *d2, double *d3) {
     if (!active) return 1;
-    if (heightmap_eval(active, x[0], x[1], h, d1, d2, d3)) {
-        snprintf(active->msg, sizeof active->msg,
-                 "the terrain was evaluated at (X, Y) = (%.6g, %.6g) m, outside the heightmap [%.6g, %.6g] x "
-                 "[%.6g, %.6g] m",
-                 x[0], x[1], active->x0, active->x0 + (active->nx - 1) * active->dx, active->y0,
-                 active->y0 + (active->ny - 1) * active->dy);
-        return 1;
-    }
-    return 0;
+    return heightmap_eval(active, x[0], x[1], h, d1, d2, d3) ? outside(x) : 0;
 }
 
 /* CasADi compressed column sparsity: nrow, ncol, colind[ncol + 1], row[nnz] */
@@ -264,6 +428,11 @@ static const casadi_int SP_1[] = {1, 1, 0, 1, 0};
 static const casadi_int SP_1X2[] = {1, 2, 0, 1, 2, 0, 0};
 static const casadi_int SP_2X2[] = {2, 2, 0, 2, 4, 0, 1, 0, 1};
 static const casadi_int SP_4X2[] = {4, 2, 0, 4, 8, 0, 1, 2, 3, 0, 1, 2, 3};
+static const casadi_int SP_7[] = {7, 1, 0, 7, 0, 1, 2, 3, 4, 5, 6};
+static const casadi_int SP_6[] = {6, 1, 0, 6, 0, 1, 2, 3, 4, 5};
+static const casadi_int SP_6X7[] = {6, 7, 0, 6, 12, 18, 24, 30, 36, 42,
+                                    0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5,
+                                    0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5};
 
 #define EXTERNAL_SHAPE(name, n_in, n_out, sp_in, sp_out)                                                   \
     casadi_int name##_n_in(void) { return n_in; }                                                          \
@@ -281,9 +450,18 @@ static const casadi_int *const OUT0[] = {SP_1, SP_X, SP_2X2};
 static const casadi_int *const IN1[] = {SP_X, SP_1, SP_X, SP_2X2};
 static const casadi_int *const OUT1[] = {SP_1X2, SP_2X2, SP_4X2};
 
+/* cedra_rim_contact: (x[7] = [wheel center c, unit axle a, radius R]) -> (e[6] = [p, h(p), h_X(p), h_Y(p)],
+ * J[6x7] = de/dx): the wheel's contact point p (spec section 6: the 13-sample rim search and 4 Newton steps, in
+ * C on the cached spline patch, heightmap_rim) with the terrain's height and gradient there, and their exact
+ * derivative with respect to the wheel's pose (implicit function theorem at the tangency point). The model uses
+ * J explicitly (cedra.terrain: the contact's chain rule), so nothing differentiates this function. */
+static const casadi_int *const IN2[] = {SP_7};
+static const casadi_int *const OUT2[] = {SP_6, SP_6X7};
+
 /* the metadata CasADi reads when it loads the functions from a shared library (Python side, cedra.heightmap) */
 EXTERNAL_SHAPE(cedra_heightmap, 1, 3, IN0, OUT0)
 EXTERNAL_SHAPE(jac_cedra_heightmap, 4, 3, IN1, OUT1)
+EXTERNAL_SHAPE(cedra_rim_contact, 1, 2, IN2, OUT2)
 
 static const double ORIGIN[2] = {0.0, 0.0};     /* CasADi passes NULL for an all-zero argument */
 
@@ -295,6 +473,18 @@ int cedra_heightmap(const double **arg, double **res, casadi_int *iw, double *w,
 int jac_cedra_heightmap(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
     (void)iw, (void)w, (void)mem;
     return eval_active(arg[0] ? arg[0] : ORIGIN, NULL, res[0], res[1], res[2]);
+}
+
+static const double ZERO7[7] = {0, 0, 0, 0, 0, 0, 0};
+
+int cedra_rim_contact(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
+    (void)iw, (void)w, (void)mem;
+    double e[6], J[42], bad[2];
+    if (!active) return 1;
+    if (heightmap_rim(active, arg[0] ? arg[0] : ZERO7, e, res[1] ? J : NULL, bad)) return outside(bad);
+    if (res[0]) memcpy(res[0], e, sizeof e);
+    if (res[1]) memcpy(res[1], J, sizeof J);
+    return 0;
 }
 
 #ifdef CEDRA_HEIGHTMAP_HOST
