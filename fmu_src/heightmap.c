@@ -171,115 +171,137 @@ void heightmap_release(heightmap *hm, heightmap_free_fn fr) {
 
 /* ---------------------------------------------------------------------------------------------- evaluating */
 
-/* One cell's polynomial in the power basis: h = sum_{a,b} A[a][b] t^a s^b with (t, s) the cell's local
- * coordinates (u - i, v - j). Loaded from the cell's 4 x 4 B-spline coefficients once (A = B' C B, B the uniform
- * cubic B-spline basis in the power basis), then every evaluation in the cell is a few Horner steps: the rim
- * search evaluates ~20 points per wheel within 2-4 cells. A patch lives on the caller's stack (no shared state). */
-typedef struct {
-    int i, j;               /* the cell; i < 0: nothing loaded */
-    double A[4][4];
-} patch;
-
-/* B[k][a]: coefficient of t^a in the uniform cubic B-spline basis function k on a cell, times 6 */
-static const double BSPLINE[4][4] = {{1, -3, 3, -1}, {4, 0, -6, 3}, {1, 3, 3, -3}, {0, 0, 0, 1}};
-
-static void patch_load(const heightmap *hm, int i, int j, patch *P) {
-    int mx = hm->nx + 2;
-    double T[4][4];                                 /* T[l][a] = sum_k C[l][k] B[k][a] (row l: Y index j + l) */
-    for (int l = 0; l < 4; l++) {
-        const double *row = hm->coef + (size_t)(j + l) * mx + i;
-        for (int a = 0; a < 4; a++)
-            T[l][a] = row[0] * BSPLINE[0][a] + row[1] * BSPLINE[1][a] + row[2] * BSPLINE[2][a] +
-                      row[3] * BSPLINE[3][a];
-    }
-    for (int a = 0; a < 4; a++)
-        for (int b = 0; b < 4; b++)
-            P->A[a][b] = (T[0][a] * BSPLINE[0][b] + T[1][a] * BSPLINE[1][b] + T[2][a] * BSPLINE[2][b] +
-                          T[3][a] * BSPLINE[3][b]) / 36.0;
-    P->i = i;
-    P->j = j;
+/* uniform cubic B-spline basis on one cell, t in [0, 1]: b[d][k] = d-th derivative of basis k */
+static void basis(double t, double b[4][4]) {
+    double s = 1.0 - t, t2 = t * t, t3 = t2 * t;
+    b[0][0] = s * s * s / 6.0;
+    b[0][1] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0;
+    b[0][2] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0;
+    b[0][3] = t3 / 6.0;
+    b[1][0] = -0.5 * s * s;
+    b[1][1] = 1.5 * t2 - 2.0 * t;
+    b[1][2] = -1.5 * t2 + t + 0.5;
+    b[1][3] = 0.5 * t2;
+    b[2][0] = s;
+    b[2][1] = 3.0 * t - 2.0;
+    b[2][2] = 1.0 - 3.0 * t;
+    b[2][3] = t;
+    b[3][0] = -1.0;
+    b[3][1] = 3.0;
+    b[3][2] = -3.0;
+    b[3][3] = 1.0;
 }
 
-/* the cell of grid coordinate u in [-slack, n - 1 + slack] (clamped; the last node belongs to the last cell) */
+/* the cell of grid coordinate u (clamped to [0, n-1]; the last node belongs to the last cell) */
 static int cell(double u, int n) {
-    int i = u > 0.0 ? (int)u : 0;               /* truncation = floor for u >= 0 */
+    int i = (int)floor(fmin(fmax(u, 0.0), n - 1));
     return i > n - 2 ? n - 2 : i;
 }
 
-/* the patch under (X, Y) (loaded into *P unless it is there already) and the local coordinates; 0, or 1 outside
- * the grid (within 1e-9 cells of an edge: the edge cell's polynomial) */
-static int locate(const heightmap *hm, double X, double Y, patch *P, double *t, double *s) {
+int heightmap_eval(const heightmap *hm, double X, double Y, double *h, double *d1, double *d2, double *d3) {
     double u = (X - hm->x0) / hm->dx, v = (Y - hm->y0) / hm->dy;
     const double slack = 1e-9;
     if (!(u >= -slack && u <= hm->nx - 1 + slack && v >= -slack && v <= hm->ny - 1 + slack)) return 1;
+    double bu[4][4], bv[4][4];
     int i = cell(u, hm->nx), j = cell(v, hm->ny);
-    if (P->i != i || P->j != j) patch_load(hm, i, j, P);
-    *t = u - i;
-    *s = v - j;
-    return 0;
-}
-
-/* d[a][b] = d^(a+b) h / dt^a ds^b at (t, s) for a + b <= order (order <= 3; the rest is left alone) */
-static void patch_eval(const patch *P, double t, double s, int order, double d[4][4]) {
-    const double (*A)[4] = P->A;
-    double r[4][4];                                 /* r[a][b] = d^a/dt^a of sum_a' A[a'][b] t^a' */
-    for (int b = 0; b < 4; b++) {
-        r[0][b] = ((A[3][b] * t + A[2][b]) * t + A[1][b]) * t + A[0][b];
-        if (order >= 1) r[1][b] = (3.0 * A[3][b] * t + 2.0 * A[2][b]) * t + A[1][b];
-        if (order >= 2) r[2][b] = 6.0 * A[3][b] * t + 2.0 * A[2][b];
-        if (order >= 3) r[3][b] = 6.0 * A[3][b];
+    basis(u - i, bu);                              /* within slack of an edge: the edge cell's polynomial */
+    basis(v - j, bv);
+    /* s[a][b] = d^(a+b) h / du^a dv^b for a + b <= 3 */
+    double s[4][4] = {{0}};
+    int mx = hm->nx + 2;
+    for (int l = 0; l < 4; l++) {
+        const double *row = hm->coef + (size_t)(j + l) * mx + i;
+        double r[4] = {0};
+        for (int k = 0; k < 4; k++)
+            for (int a = 0; a < 4; a++) r[a] += bu[a][k] * row[k];
+        for (int a = 0; a < 4; a++)
+            for (int b = 0; a + b < 4; b++) s[a][b] += r[a] * bv[b][l];
     }
-    for (int a = 0; a <= order; a++) {
-        const double *ra = r[a];
-        d[a][0] = ((ra[3] * s + ra[2]) * s + ra[1]) * s + ra[0];
-        if (a + 1 <= order) d[a][1] = (3.0 * ra[3] * s + 2.0 * ra[2]) * s + ra[1];
-        if (a + 2 <= order) d[a][2] = 6.0 * ra[3] * s + 2.0 * ra[2];
-        if (a + 3 <= order) d[a][3] = 6.0 * ra[3];
-    }
-}
-
-int heightmap_eval(const heightmap *hm, double X, double Y, double *h, double *d1, double *d2, double *d3) {
-    patch P;
-    double t, s, d[4][4];
-    P.i = -1;
-    if (locate(hm, X, Y, &P, &t, &s)) return 1;
-    patch_eval(&P, t, s, d3 ? 3 : d2 ? 2 : d1 ? 1 : 0, d);
     double ix = 1.0 / hm->dx, iy = 1.0 / hm->dy;
-    if (h) *h = d[0][0];
+    if (h) *h = s[0][0];
     if (d1) {
-        d1[0] = d[1][0] * ix;
-        d1[1] = d[0][1] * iy;
+        d1[0] = s[1][0] * ix;
+        d1[1] = s[0][1] * iy;
     }
     if (d2) {
-        d2[0] = d[2][0] * ix * ix;
-        d2[1] = d2[2] = d[1][1] * ix * iy;
-        d2[3] = d[0][2] * iy * iy;
+        d2[0] = s[2][0] * ix * ix;
+        d2[1] = d2[2] = s[1][1] * ix * iy;
+        d2[3] = s[0][2] * iy * iy;
     }
     if (d3) {
-        double xxx = d[3][0] * ix * ix * ix, xxy = d[2][1] * ix * ix * iy, xyy = d[1][2] * ix * iy * iy,
-               yyy = d[0][3] * iy * iy * iy;
+        double xxx = s[3][0] * ix * ix * ix, xxy = s[2][1] * ix * ix * iy, xyy = s[1][2] * ix * iy * iy,
+               yyy = s[0][3] * iy * iy * iy;
         d3[0] = xxx, d3[1] = xxy, d3[2] = xxy, d3[3] = xyy;       /* d/dX of [h_XX, h_YX, h_XY, h_YY] */
         d3[4] = xxy, d3[5] = xyy, d3[6] = xyy, d3[7] = yyy;       /* d/dY */
     }
     return 0;
 }
 
-/* height, gradient and Hessian [h_XX, h_XY, h_YY] at (X, Y) through the caller's patch; 0, or 1 outside */
-static int eval2(const heightmap *hm, double X, double Y, patch *P, double *h, double g[2], double H[3]) {
-    double t, s, d[4][4];
-    if (locate(hm, X, Y, P, &t, &s)) return 1;
-    patch_eval(P, t, s, H ? 2 : g ? 1 : 0, d);
-    *h = d[0][0];
-    if (g) {
-        double ix = 1.0 / hm->dx, iy = 1.0 / hm->dy;
-        g[0] = d[1][0] * ix;
-        g[1] = d[0][1] * iy;
-        if (H) {
-            H[0] = d[2][0] * ix * ix;
-            H[1] = d[1][1] * ix * iy;
-            H[2] = d[0][2] * iy * iy;
-        }
+/* The rim search's evaluations (~20 points per wheel and model evaluation): the same spline, unrolled for what
+ * the search needs (the height alone at the 13 samples; height, gradient and Hessian at the Newton points).
+ * The cell and its local coordinates: 0, or 1 outside the grid (as heightmap_eval). */
+static int locate(const heightmap *hm, double X, double Y, const double **c, double *t, double *s) {
+    double u = (X - hm->x0) / hm->dx, v = (Y - hm->y0) / hm->dy;
+    const double slack = 1e-9;
+    if (!(u >= -slack && u <= hm->nx - 1 + slack && v >= -slack && v <= hm->ny - 1 + slack)) return 1;
+    int i = u > 0.0 ? (int)u : 0, j = v > 0.0 ? (int)v : 0;   /* truncation = floor here */
+    if (i > hm->nx - 2) i = hm->nx - 2;
+    if (j > hm->ny - 2) j = hm->ny - 2;
+    *c = hm->coef + (size_t)j * (hm->nx + 2) + i;
+    *t = u - i;
+    *s = v - j;
+    return 0;
+}
+
+/* the four basis values at t (basis(t)[0]) */
+static void basis0(double t, double b[4]) {
+    double s = 1.0 - t, t2 = t * t, t3 = t2 * t;
+    b[0] = s * s * s / 6.0;
+    b[1] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0;
+    b[2] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0;
+    b[3] = t3 / 6.0;
+}
+
+static int eval_h(const heightmap *hm, double X, double Y, double *h) {
+    const double *c;
+    double t, s, bu[4], bv[4];
+    if (locate(hm, X, Y, &c, &t, &s)) return 1;
+    basis0(t, bu);
+    basis0(s, bv);
+    int mx = hm->nx + 2;
+    double sum = 0.0;
+    for (int l = 0; l < 4; l++, c += mx) sum += (bu[0] * c[0] + bu[1] * c[1] + bu[2] * c[2] + bu[3] * c[3]) * bv[l];
+    *h = sum;
+    return 0;
+}
+
+/* height, gradient and Hessian [h_XX, h_XY, h_YY] */
+static int eval_h2(const heightmap *hm, double X, double Y, double *h, double g[2], double H[3]) {
+    const double *c;
+    double t, s, bu[4][4], bv[4][4];
+    if (locate(hm, X, Y, &c, &t, &s)) return 1;
+    basis(t, bu);
+    basis(s, bv);
+    int mx = hm->nx + 2;
+    double r0 = 0, r1 = 0, r2 = 0, h0 = 0, hx = 0, hy = 0, hxx = 0, hxy = 0, hyy = 0;
+    for (int l = 0; l < 4; l++, c += mx) {
+        r0 = bu[0][0] * c[0] + bu[0][1] * c[1] + bu[0][2] * c[2] + bu[0][3] * c[3];
+        r1 = bu[1][0] * c[0] + bu[1][1] * c[1] + bu[1][2] * c[2] + bu[1][3] * c[3];
+        r2 = bu[2][0] * c[0] + bu[2][1] * c[1] + bu[2][2] * c[2] + bu[2][3] * c[3];
+        h0 += r0 * bv[0][l];
+        hy += r0 * bv[1][l];
+        hyy += r0 * bv[2][l];
+        hx += r1 * bv[0][l];
+        hxy += r1 * bv[1][l];
+        hxx += r2 * bv[0][l];
     }
+    double ix = 1.0 / hm->dx, iy = 1.0 / hm->dy;
+    *h = h0;
+    g[0] = hx * ix;
+    g[1] = hy * iy;
+    H[0] = hxx * ix * ix;
+    H[1] = hxy * ix * iy;
+    H[2] = hyy * iy * iy;
     return 0;
 }
 
@@ -297,10 +319,8 @@ static void cross3(const double *a, const double *b, double *c) {
 
 int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J, double bad[2]) {
     const double *c = x, *a = x + 3, R = x[6];
-    patch P;
-    P.i = -1;
     double h0, g0[2], H0[3];
-    if (eval2(hm, c[0], c[1], &P, &h0, g0, H0)) {
+    if (eval_h2(hm, c[0], c[1], &h0, g0, H0)) {
         bad[0] = c[0], bad[1] = c[1];
         return 1;
     }
@@ -321,12 +341,40 @@ int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J
     static const double SIN[7] = {0.0, 0.25881904510252074, 0.49999999999999994, 0.70710678118654746,
                                   0.8660254037844386, 0.96592582628906831, 1.0};
     const double pi = 3.14159265358979323846;
+    /* Pruning, exact: every sample lies within R of the center horizontally; where that square is on the grid,
+     * the spline under it is at most the largest B-spline coefficient of its cells (the basis is nonnegative and
+     * sums to 1 there), so a sample whose p_Z is so high that even that height could not beat the best g so far
+     * is not evaluated: it could not have been chosen. (Off the grid's edge nothing is pruned, so a point off the
+     * grid still fails the evaluation as before.) */
+    double hmax = 0.0;
+    int prune = 0;
+    {
+        double Rb = R * (1.0 + 1e-9) + 1e-12;
+        double u0 = (c[0] - Rb - hm->x0) / hm->dx, u1 = (c[0] + Rb - hm->x0) / hm->dx;
+        double v0 = (c[1] - Rb - hm->y0) / hm->dy, v1 = (c[1] + Rb - hm->y0) / hm->dy;
+        if (u0 >= 0.0 && u1 <= hm->nx - 1 && v0 >= 0.0 && v1 <= hm->ny - 1) {
+            int i0 = cell(u0, hm->nx), i1 = cell(u1, hm->nx), j0 = cell(v0, hm->ny), j1 = cell(v1, hm->ny);
+            if ((i1 - i0 + 4) * (j1 - j0 + 4) <= 64) {
+                double lo = hm->coef[(size_t)j0 * (hm->nx + 2) + i0], hi = lo;
+                for (int jj = j0; jj <= j1 + 3; jj++) {
+                    const double *row = hm->coef + (size_t)jj * (hm->nx + 2);
+                    for (int ii = i0; ii <= i1 + 3; ii++) {
+                        if (row[ii] > hi) hi = row[ii];
+                        if (row[ii] < lo) lo = row[ii];
+                    }
+                }
+                hmax = hi + 1e-12 * (fabs(hi) + fabs(lo));     /* the basis sums to 1 up to rounding */
+                prune = 1;
+            }
+        }
+    }
     double best_b = 0.0, best_g = 0.0;
     for (int kk = 0; kk < 13; kk++) {
         int k = ORDER[kk], ka = k < 0 ? -k : k;
         double b = k * pi / 12, cb = COS[ka], sb = k < 0 ? -SIN[ka] : SIN[ka], p[3], h;
         for (int i = 0; i < 3; i++) p[i] = c[i] + R * (cb * r1[i] + sb * r2[i]);
-        if (eval2(hm, p[0], p[1], &P, &h, NULL, NULL)) {
+        if (prune && kk > 0 && hmax - p[2] < best_g) continue;
+        if (eval_h(hm, p[0], p[1], &h)) {
             bad[0] = p[0], bad[1] = p[1];
             return 1;
         }
@@ -341,7 +389,7 @@ int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J
             p[i] = c[i] + R * (cb * r1[i] + sb * r2[i]);
             dp[i] = R * (-sb * r1[i] + cb * r2[i]);
         }
-        if (eval2(hm, p[0], p[1], &P, &h, g, H)) {
+        if (eval_h2(hm, p[0], p[1], &h, g, H)) {
             bad[0] = p[0], bad[1] = p[1];
             return 1;
         }
@@ -350,7 +398,12 @@ int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J
         d2 = dp[0] * (H[0] * dp[0] + H[1] * dp[1]) + dp[1] * (H[1] * dp[0] + H[2] * dp[1]) + g[0] * ddp[0] +
              g[1] * ddp[1] - ddp[2];
         if (it == RIM_NEWTON) break;                  /* the final point: p, h, g, H, d2 are its */
-        if (d2 < 0) b = b - d1 / d2;
+        /* where beta does not move (no step, or a step below its last bit) every later step evaluates this point
+         * again and moves nothing: this point is the final one, exactly as after all RIM_NEWTON steps */
+        if (!(d2 < 0)) break;
+        double next = b - d1 / d2;
+        if (next == b) break;
+        b = next;
     }
     e[0] = p[0], e[1] = p[1], e[2] = p[2], e[3] = h, e[4] = g[0], e[5] = g[1];
     if (!J) return 0;
@@ -452,9 +505,10 @@ static const casadi_int *const OUT1[] = {SP_1X2, SP_2X2, SP_4X2};
 
 /* cedra_rim_contact: (x[7] = [wheel center c, unit axle a, radius R]) -> (e[6] = [p, h(p), h_X(p), h_Y(p)],
  * J[6x7] = de/dx): the wheel's contact point p (spec section 6: the 13-sample rim search and 4 Newton steps, in
- * C on the cached spline patch, heightmap_rim) with the terrain's height and gradient there, and their exact
- * derivative with respect to the wheel's pose (implicit function theorem at the tangency point). The model uses
- * J explicitly (cedra.terrain: the contact's chain rule), so nothing differentiates this function. */
+ * C, heightmap_rim) with the terrain's height and gradient there, and their exact derivative with respect to the
+ * wheel's pose (implicit function theorem at the tangency point). The model uses J explicitly (cedra.terrain:
+ * the contact's chain rule), so nothing differentiates this function. cedra_rim_point: the same without J (the
+ * functions that hold no derivative, cedra_f above all). */
 static const casadi_int *const IN2[] = {SP_7};
 static const casadi_int *const OUT2[] = {SP_6, SP_6X7};
 
@@ -462,6 +516,7 @@ static const casadi_int *const OUT2[] = {SP_6, SP_6X7};
 EXTERNAL_SHAPE(cedra_heightmap, 1, 3, IN0, OUT0)
 EXTERNAL_SHAPE(jac_cedra_heightmap, 4, 3, IN1, OUT1)
 EXTERNAL_SHAPE(cedra_rim_contact, 1, 2, IN2, OUT2)
+EXTERNAL_SHAPE(cedra_rim_point, 1, 1, IN2, OUT2)
 
 static const double ORIGIN[2] = {0.0, 0.0};     /* CasADi passes NULL for an all-zero argument */
 
@@ -477,14 +532,23 @@ int jac_cedra_heightmap(const double **arg, double **res, casadi_int *iw, double
 
 static const double ZERO7[7] = {0, 0, 0, 0, 0, 0, 0};
 
-int cedra_rim_contact(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
-    (void)iw, (void)w, (void)mem;
+static int rim_active(const double *x, double *e_out, double *J_out) {
     double e[6], J[42], bad[2];
     if (!active) return 1;
-    if (heightmap_rim(active, arg[0] ? arg[0] : ZERO7, e, res[1] ? J : NULL, bad)) return outside(bad);
-    if (res[0]) memcpy(res[0], e, sizeof e);
-    if (res[1]) memcpy(res[1], J, sizeof J);
+    if (heightmap_rim(active, x ? x : ZERO7, e, J_out ? J : NULL, bad)) return outside(bad);
+    if (e_out) memcpy(e_out, e, sizeof e);
+    if (J_out) memcpy(J_out, J, sizeof J);
     return 0;
+}
+
+int cedra_rim_contact(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
+    (void)iw, (void)w, (void)mem;
+    return rim_active(arg[0], res[0], res[1]);
+}
+
+int cedra_rim_point(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
+    (void)iw, (void)w, (void)mem;
+    return rim_active(arg[0], res[0], NULL);
 }
 
 #ifdef CEDRA_HEIGHTMAP_HOST

@@ -32,6 +32,7 @@ SOURCE = REPO_ROOT / "fmu_src" / "heightmap.c"
 HOST_DIR = REPO_ROOT / "build" / "host"
 EXTERNAL_NAME = "cedra_heightmap"
 RIM_EXTERNAL_NAME = "cedra_rim_contact"
+RIM_POINT_EXTERNAL_NAME = "cedra_rim_point"        # the same without the Jacobian
 RESOURCE_NAME = "heightmap.txt"      # the file's name inside the FMU's resources/
 
 
@@ -100,9 +101,10 @@ def external() -> ca.Function:
     return ca.external(EXTERNAL_NAME, str(host_library()))
 
 
-def rim_external() -> ca.Function:
+def rim_external(jacobian: bool = True) -> ca.Function:
     """cedra_rim_contact: (x[7] = [wheel center, unit axle, radius]) -> (e[6] = [p, h(p), h_X(p), h_Y(p)],
     J[6x7] = de/dx), the wheel's contact point by the spec's rim search (in C, heightmap.c: heightmap_rim) and its
-    exact derivative (implicit function theorem), on the active map (see load)."""
+    exact derivative (implicit function theorem), on the active map (see load). jacobian=False: cedra_rim_point,
+    x -> e alone."""
     _ctypes_lib()
-    return ca.external(RIM_EXTERNAL_NAME, str(host_library()))
+    return ca.external(RIM_EXTERNAL_NAME if jacobian else RIM_POINT_EXTERNAL_NAME, str(host_library()))

@@ -124,13 +124,17 @@ class Terrain:
 
     def resolve(self, exprs: list, derivatives: bool = True) -> list:
         """exprs with the rim contacts' symbols put in: x0 = x, (e0, J0) = cedra_rim_contact(x). derivatives=False
-        for expressions that hold no derivative of a contact (J0 = 0 there: the call's Jacobian is not used)."""
+        for expressions that hold no derivative of a contact: J0 = 0 there, e0 = cedra_rim_point(x) (no Jacobian
+        computed)."""
         if not self._frozen:
             return list(exprs)
-        ext = heightmap.rim_external()
+        ext = heightmap.rim_external(derivatives)
         syms, vals = [], []
         for x0, e0, J0, x in self._frozen:
-            e, J = ext(x)
+            if derivatives:
+                e, J = ext(x)
+            else:
+                e, J = ext(x), ca.SX.zeros(6, 7)
             syms += [x0, e0, J0]
-            vals += [x, e, J if derivatives else ca.SX.zeros(6, 7)]
+            vals += [x, e, J]
         return ca.substitute(list(exprs), syms, vals)
