@@ -3,7 +3,7 @@
     python examples/bump_paper.py           (or: python -m cedra simulate bump_paper)
 
 The main job (`./build.sh demo`) as a script: writes out/bump_paper/ (bump2d.csv, forces.png in the spirit of the
-paper's Fig. 8, path.png) and prints a summary. The loop itself is cedra.simulate.run_bump (the controller in
+paper's Fig. 8, path.png) and prints a summary. The loop itself is cedra.run.simulate.run_bump (the controller in
 Python, measuring at t and holding the torque over [t, t + 0.01 s]).
 """
 from __future__ import annotations
@@ -14,8 +14,8 @@ STOP_TIME = 15.0
 
 
 def run(out_dir="out/bump_paper", build_dir="build", stop_time=None, quiet=False) -> dict:
-    from cedra.scenario import fmu
-    from cedra.simulate import bump_terrain, run_bump, write_outputs
+    from cedra.run.scenario import fmu
+    from cedra.run.simulate import bump_terrain, run_bump, write_outputs
     stop_time = stop_time or STOP_TIME
     path = fmu("bump2d", build_dir)
     names, rows, torques, info = run_bump(path, stop_time)

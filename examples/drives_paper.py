@@ -1,5 +1,5 @@
 """The paper's bump run (spec section 10) with plain torques (bump2d) and with drives (bump2d_drives, spec
-section 11), under the same speed controller (cedra.simulate.run_bump): how much of the motors' work goes into
+section 11), under the same speed controller (cedra.run.simulate.run_bump): how much of the motors' work goes into
 spinning wheels and wheel slip when the torque command is not limited by a motor's torque-speed envelope.
 
     python examples/drives_paper.py [stop_time]     # writes out/drives_paper/, prints a summary
@@ -23,9 +23,9 @@ SHOWN = {1: "bogie front (1, 3)", 2: "bogie rear (2, 4)", 5: "rear (5)", 6: "fro
 def run_scene(scene, build_dir="build", stop_time=None) -> dict[str, np.ndarray]:
     """One closed-loop bump run of a shipped scene; its outputs by name, with "time" and "tau_cmd" (the
     controller's command to every wheel, held over the following sample)."""
-    from cedra import scene as scn
-    from cedra.fmu import build_fmu
-    from cedra.simulate import run_bump
+    from cedra.models import scene as scn
+    from cedra.fmu.packaging import build_fmu
+    from cedra.run.simulate import run_bump
     sc = scn.load_shipped(scene)
     fmu = Path(build_dir) / f"{scene}.fmu"
     if not fmu.exists():
@@ -112,7 +112,7 @@ def plot(path, runs, noload_speed):
 def run(out_dir="out/drives_paper", build_dir="build", stop_time=None, quiet=False) -> dict[str, dict[str, float]]:
     """Both runs: CSVs and the figure into out_dir, the summary printed (unless quiet) and returned (scene ->
     figures)."""
-    from cedra.parameters import DEFAULTS
+    from cedra.rover.parameters import DEFAULTS
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     runs = {scene: run_scene(scene, build_dir, stop_time) for scene in SCENES}

@@ -18,14 +18,15 @@ STEP = 0.005
 
 
 def run(out_dir="out/drop", build_dir="build", stop_time=None, quiet=False) -> dict:
-    from cedra.driver import RoverFMU
-    from cedra.parameters import DEFAULTS
-    from cedra.scenario import Progress, fmu, write_csv
+    from cedra.run.driver import RoverFMU
+    from cedra.rover.parameters import DEFAULTS
+    from cedra.run.progress import Progress
+    from cedra.run.scenario import fmu, write_csv
     stop_time = stop_time or STOP_TIME
     plant = RoverFMU(fmu("flat3d", build_dir))
     names = ["body.z", "body.vz", "energy.kinetic", "energy.potential"] + [f"wheel[{i}].Fn" for i in range(1, 7)]
     z0 = DEFAULTS["R_w"] - DEFAULTS["rear_z"] + DROP_HEIGHT       # body.z of the design pose, raised
-    progress = Progress(stop_time, "drop", quiet)
+    progress = Progress(stop_time, "drop", quiet=quiet)
     rows, ok = [], True
     try:
         plant.start({"start.settle": False, "start.z": z0, "start.theta4": DEFAULTS["fork_theta4_ref"]})

@@ -1,7 +1,7 @@
 """The rolling hills of the shipped scene hills3d (terrain = "heightmap"): how its grid file was made, and a
 drive across it through the FMU.
 
-    python examples/hills.py            # rewrites python/cedra/scenes/hills3d.txt, then drives (prints a summary)
+    python examples/hills.py            # rewrites python/cedra/models/scenes/hills3d.txt, then drives (prints a summary)
 
 tests/test_heightmap.py checks that the shipped grid is exactly what heights() gives, and runs drive().
 """
@@ -16,7 +16,7 @@ GRID = dict(x0=-1.0, y0=-1.0, dx=0.05, dy=0.05, nx=101, ny=41)    # X in [-1, 4]
 # (X, Y, height, width) of each hill, m: low and broad enough for 0.065 m wheels; under the start pose (wheels at
 # X = -0.3 .. 0.3) the hills add less than 1e-8 m, so the start is the flat ground's
 HILLS = [(1.3, 0.15, 0.05, 0.25), (1.9, -0.25, 0.06, 0.3), (2.5, 0.3, 0.04, 0.2), (3.0, -0.1, 0.05, 0.3)]
-SHIPPED = Path(__file__).resolve().parents[1] / "python" / "cedra" / "scenes" / "hills3d.txt"
+SHIPPED = Path(__file__).resolve().parents[1] / "python" / "cedra" / "models" / "scenes" / "hills3d.txt"
 
 
 def heights(X, Y):
@@ -34,18 +34,18 @@ def grid():
 
 
 def write_heightmap(path=SHIPPED) -> Path:
-    from cedra import heightmap
+    from cedra.mechanics import heightmap
     _, _, Z = grid()
     return heightmap.write(path, np.round(Z, 9), GRID["x0"], GRID["y0"], GRID["dx"], GRID["dy"],
                            "cedra scene hills3d: rolling hills, made by examples/hills.py")
 
 
 def drive(build_dir="build", stop_time=None):
-    """Run the shipped hills3d FMU under the main job's closed loop (cedra.simulate.run_bump: the sampled speed
+    """Run the shipped hills3d FMU under the main job's closed loop (cedra.run.simulate.run_bump: the sampled speed
     controller, the same torque on every wheel); returns (names, rows), names[0] = "time"."""
-    from cedra import scene as scn
-    from cedra.fmu import build_fmu
-    from cedra.simulate import run_bump
+    from cedra.models import scene as scn
+    from cedra.fmu.packaging import build_fmu
+    from cedra.run.simulate import run_bump
     sc = scn.load_shipped("hills3d")
     fmu = Path(build_dir) / "hills3d.fmu"
     if not fmu.exists():

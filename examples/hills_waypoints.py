@@ -27,7 +27,7 @@ RECORD = ["body.x", "body.y", "body.yaw", "body.z"] + [f"wheel[{i}].slip" for i 
 
 def check_inputs(waypoints, speed, grid):
     """ScenarioError before any simulation: a negative speed, an empty list, a waypoint off the heightmap."""
-    from cedra.scenario import ScenarioError
+    from cedra.run.scenario import ScenarioError
     if not speed > 0:
         raise ScenarioError(f"hills_waypoints: SPEED = {speed} m/s must be > 0")
     if not waypoints:
@@ -42,7 +42,7 @@ def check_inputs(waypoints, speed, grid):
 
 def grid_extent():
     """(x0, y0, x1, y1) of the shipped hills3d grid, from its header."""
-    from cedra.scene import load_shipped
+    from cedra.models.scene import load_shipped
     path = Path(load_shipped("hills3d").options.heightmap)
     nums = [ln.split() for ln in path.read_text().splitlines() if ln and not ln.startswith("#")][1]
     nx, ny, x0, y0, dx, dy = int(nums[0]), int(nums[1]), *map(float, nums[2:6])
@@ -71,8 +71,8 @@ class PurePursuit:
 
 def run(out_dir="out/hills_waypoints", build_dir="build", stop_time=None, quiet=False, waypoints=None,
         speed=None) -> dict:
-    from cedra.cosim import DriveLoop
-    from cedra.scenario import fmu, run_loop, write_csv
+    from cedra.run.cosim import DriveLoop
+    from cedra.run.scenario import fmu, run_loop, write_csv
     global SPEED
     waypoints = WAYPOINTS if waypoints is None else waypoints
     SPEED = SPEED if speed is None else speed

@@ -41,8 +41,8 @@ class LineHolder:
 
 
 def run(out_dir="out/slope_traverse", build_dir="build", stop_time=None, quiet=False) -> dict:
-    from cedra.cosim import DriveLoop
-    from cedra.scenario import fmu, run_loop, write_csv
+    from cedra.run.cosim import DriveLoop
+    from cedra.run.scenario import fmu, run_loop, write_csv
     stop_time = stop_time or STOP_TIME
     out = Path(out_dir)
     start = {"start.yaw": HEADING}

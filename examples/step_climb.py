@@ -23,8 +23,8 @@ RECORD = (["body.x"] + [f"wheel[{i}].{q}" for i in WHEELS for q in ("slip", "Fn"
 
 
 def run(out_dir="out/step_climb", build_dir="build", stop_time=None, quiet=False) -> dict:
-    from cedra.cosim import DriveLoop
-    from cedra.scenario import fmu, run_loop, write_csv
+    from cedra.run.cosim import DriveLoop
+    from cedra.run.scenario import fmu, run_loop, write_csv
     stop_time = stop_time or STOP_TIME
     out = Path(out_dir)
     runs, summary = {}, {}

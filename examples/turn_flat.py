@@ -4,7 +4,8 @@
 
 Writes out/turn_flat/: turn_flat.csv, path.png (the body's path and the commanded circle), tracking.png
 (commanded vs measured yaw rate and speed, steering angles, wheel slips), and prints a summary.
-Edit SPEED, YAW_RATE, STOP_TIME to try other turns.
+Edit SPEED, YAW_RATE, STOP_TIME to try other turns, or sweep them: examples/sweeps/turn_flat.toml
+(`python -m cedra sweep turn_flat`; PARAMETERS and SUMMARY below are what a sweep may vary and keep).
 """
 from __future__ import annotations
 
@@ -15,18 +16,28 @@ import numpy as np
 SPEED, YAW_RATE = 0.2, 0.3         # m/s, rad/s (positive turns left): a circle of radius SPEED / YAW_RATE
 STOP_TIME = 20.0                   # s
 STEP = 0.01                        # s, communication step = the controller's period
+FMUS = ("flat3d", "drive3d")       # the FMUs run() opens (a sweep builds them first)
+# what a sweep may vary: name -> (default, min, max, meaning)
+PARAMETERS = {"speed_cmd": (SPEED, 0.0, 0.5, "m/s, commanded speed"),
+              "yaw_rate_cmd": (YAW_RATE, 0.05, 1.0, "rad/s, commanded yaw rate (a left turn: the scenario fits a circle)"),
+              "mu": (0.8, 0.05, 2.0, "friction coefficient of the ground")}
+# what run() returns (besides the wall time): name -> meaning
+SUMMARY = {"yaw_rate": "rad/s, mean measured yaw rate after the start", "speed": "m/s, mean measured speed",
+           "radius": "m, mean turn radius speed / yaw rate", "commanded_radius": "m, speed / yaw rate commanded"}
 RECORD = (["body.x", "body.y", "body.yaw", "body.vx", "body.vy", "body.wz", "steer.theta[1]", "steer.theta[2]",
            "steer[1]", "steer[2]"] + [f"wheel[{i}].slip" for i in range(1, 7)] +
           [f"tau[{i}]" for i in range(1, 7)])
 
 
-def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False) -> dict:
-    from cedra.cosim import DriveLoop
-    from cedra.scenario import fmu, run_loop, write_csv
+def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False, params=None) -> dict:
+    """params: values of PARAMETERS (a sweep's run); the others keep their defaults."""
+    from cedra.run.cosim import DriveLoop
+    from cedra.run.scenario import fmu, parameters, run_loop, write_csv
     stop_time = stop_time or STOP_TIME
-    loop = DriveLoop(fmu("flat3d", build_dir), fmu("drive3d", build_dir))
-    r = run_loop(loop, "turn_flat", stop_time, STEP, lambda t: {"cmd.v": SPEED, "cmd.yaw_rate": YAW_RATE}, RECORD,
-                 quiet)
+    p = parameters(PARAMETERS, params)
+    loop = DriveLoop(*(fmu(n, build_dir) for n in FMUS), plant_values={"mu": p["mu"]})
+    r = run_loop(loop, "turn_flat", stop_time, STEP, lambda t: {"cmd.v": p["speed_cmd"], "cmd.yaw_rate": p["yaw_rate_cmd"]},
+                 RECORD, quiet)
     out = Path(out_dir)
     write_csv(out / "turn_flat.csv", r.names, r.rows)
     t = r.column("time")
@@ -34,23 +45,23 @@ def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False)
     speed = np.hypot(r.column("body.vx"), r.column("body.vy"))
     wz = r.column("body.wz")
     summary = dict(yaw_rate=float(wz[late].mean()), speed=float(speed[late].mean()),
-                   radius=float((speed[late] / wz[late]).mean()), commanded_radius=SPEED / YAW_RATE,
+                   radius=float((speed[late] / wz[late]).mean()), commanded_radius=p["speed_cmd"] / p["yaw_rate_cmd"],
                    wall=r.wall)
-    _plots(out, r, t, speed, wz)
+    _plots(out, r, t, speed, wz, p["speed_cmd"], p["yaw_rate_cmd"])
     if not quiet:
-        print(f"turn_flat: yaw rate {summary['yaw_rate']:.4f} rad/s (commanded {YAW_RATE}), speed "
-              f"{summary['speed']:.4f} m/s ({SPEED}), radius {summary['radius']:.4f} m ({SPEED / YAW_RATE:.4f}), "
-              f"{stop_time:g} s in {r.wall:.1f} s wall -> {out}")
+        print(f"turn_flat: yaw rate {summary['yaw_rate']:.4f} rad/s (commanded {p['yaw_rate_cmd']}), speed "
+              f"{summary['speed']:.4f} m/s ({p['speed_cmd']}), radius {summary['radius']:.4f} m "
+              f"({summary['commanded_radius']:.4f}), {stop_time:g} s in {r.wall:.1f} s wall -> {out}")
     return summary
 
 
-def _plots(out, r, t, speed, wz):
+def _plots(out, r, t, speed, wz, v_cmd, wz_cmd):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(5, 5))
     x, y = r.column("body.x"), r.column("body.y")
-    radius = SPEED / YAW_RATE
+    radius = v_cmd / wz_cmd
     late = t >= 0.5 * t[-1]           # the circle of the commanded radius about the turn center after the start
     cx = np.mean(x[late] - r.column("body.vy")[late] / wz[late])
     cy = np.mean(y[late] + r.column("body.vx")[late] / wz[late])
@@ -67,10 +78,10 @@ def _plots(out, r, t, speed, wz):
     plt.close(fig)
     fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
     axs[0].plot(t, wz, label="measured")
-    axs[0].axhline(YAW_RATE, color="k", ls="--", lw=0.8, label="commanded")
+    axs[0].axhline(wz_cmd, color="k", ls="--", lw=0.8, label="commanded")
     axs[0].set_ylabel("yaw rate, rad/s")
     axs[1].plot(t, speed, label="measured")
-    axs[1].axhline(SPEED, color="k", ls="--", lw=0.8, label="commanded")
+    axs[1].axhline(v_cmd, color="k", ls="--", lw=0.8, label="commanded")
     axs[1].set_ylabel("speed, m/s")
     for k, n in ((1, "rear wheel 5"), (2, "front wheel 6")):
         axs[2].plot(t, np.degrees(r.column(f"steer.theta[{k}]")), label=f"{n}")

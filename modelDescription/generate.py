@@ -1,5 +1,5 @@
 """modelDescription.xml (FMI 2.0 Co-Simulation) and cedra_vars.h (the C glue's sizes and value-reference table),
-both from the one variable table of cedra.variables.
+both from the one variable table of cedra.fmu.variables.
 
     spec_guid(spec) -> str                                  "{8-4-4-4-12}" from a SHA-256 of the spec
     write_model_description(spec, path, guid) -> Path
@@ -20,8 +20,8 @@ _PY = Path(__file__).resolve().parents[1] / "python"
 if str(_PY) not in sys.path:                      # importable from a checkout without installing the package
     sys.path.insert(0, str(_PY))
 
-from cedra.spec import ModelSpec  # noqa: E402
-from cedra.variables import Var, solver_defaults, units, variables  # noqa: E402
+from cedra.contract import ModelSpec  # noqa: E402
+from cedra.fmu.variables import Var, solver_defaults, units, variables  # noqa: E402
 
 GENERATION_TOOL = "cedra (CasADi code generation, hand-written FMI 2.0 CS glue)"
 LOG_CATEGORIES = [

@@ -16,7 +16,7 @@ _BUILT: dict[str, Path] = {}
 def toy_fmu(tmp_path_factory) -> Path:
     """<tmp>/toy.fmu built from toy_model.toy_spec(), once per session (process)."""
     if "toy" not in _BUILT:
-        from cedra.fmu import build_fmu
+        from cedra.fmu.packaging import build_fmu
         from toy_model import toy_spec
         _BUILT["toy"] = Path(build_fmu(toy_spec(), tmp_path_factory.mktemp("toy_build")))
         _BUILT["unzip"] = Path(extract(str(_BUILT["toy"]), unzipdir=str(tmp_path_factory.mktemp("toy_unzip"))))

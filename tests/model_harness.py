@@ -4,7 +4,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from cedra.model import CedraModel
+from cedra.models.plant import CedraModel
 
 
 class Built:

@@ -1,4 +1,4 @@
-"""The MuJoCo side by side of the benchmark (issue 13, item 2): cedra.mujoco_model and `python -m cedra bench
+"""The MuJoCo side by side of the benchmark (issue 13, item 2): cedra.reports.mujoco_model and `python -m cedra bench
 --quick`. mujoco is an optional dependency (the `bench` extra, which ./build.sh installs); without it these tests
 are skipped, and nothing else in the project needs it."""
 from __future__ import annotations
@@ -16,11 +16,12 @@ mujoco = pytest.importorskip("mujoco", reason="mujoco (the optional 'bench' extr
                                               "is not importable: the MuJoCo side by side is not tested",
                              exc_type=ImportError)
 
-from cedra import bench, mujoco_model as mm                # noqa: E402
-from cedra.fmu import build_fmu                            # noqa: E402
-from cedra.parameters import DEFAULTS                      # noqa: E402
-from cedra.scene import load_shipped                       # noqa: E402
-from cedra.simulate import run_bump                        # noqa: E402
+from cedra.reports import bench
+from cedra.reports import mujoco_model as mm                # noqa: E402
+from cedra.fmu.packaging import build_fmu                            # noqa: E402
+from cedra.rover.parameters import DEFAULTS                      # noqa: E402
+from cedra.models.scene import load_shipped                       # noqa: E402
+from cedra.run.simulate import run_bump                        # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 

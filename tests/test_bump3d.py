@@ -1,6 +1,6 @@
 """bump3d (issue 13, item 1): the paper's run in 3D, on the `bump` terrain (constant in Y). Started symmetric
 (start.y = 0, start.yaw = 0, the same torque on all six wheels) under the main job's controller
-(cedra.simulate.run_bump), it must give the planar scene bump2d's results.
+(cedra.run.simulate.run_bump), it must give the planar scene bump2d's results.
 
 How the wheels pair up (spec section 8): the planar model's coordinates move wheels 1 and 3 (and 2 and 4) as one,
 so its equations carry both wheels' masses and contact forces; its outputs still report each wheel's own force
@@ -30,11 +30,11 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from cedra.fmu import build_fmu
-from cedra.model import CedraModel, ModelOptions
-from cedra.parameters import DEFAULTS
-from cedra.scene import load_shipped
-from cedra.simulate import run_bump
+from cedra.fmu.packaging import build_fmu
+from cedra.models.plant import CedraModel, ModelOptions
+from cedra.rover.parameters import DEFAULTS
+from cedra.models.scene import load_shipped
+from cedra.run.simulate import run_bump
 
 REPO = Path(__file__).resolve().parents[1]
 STOP = 8.0          # over the whole bump: the front wheel meets it near t = 3.5 s, the rear wheel leaves ~7.5 s

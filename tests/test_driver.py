@@ -5,8 +5,8 @@ import sys
 import textwrap
 from pathlib import Path
 
-from cedra.fmu import build_fmu
-from cedra.scene import load_shipped
+from cedra.fmu.packaging import build_fmu
+from cedra.models.scene import load_shipped
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -17,7 +17,7 @@ def test_fmpy_logging_still_works_after_a_driver_is_gone(tmp_path):
         import gc
         from fmpy import extract, read_model_description
         from fmpy.fmi2 import FMU2Slave
-        from cedra.driver import RoverFMU
+        from cedra.run.driver import RoverFMU
         f = RoverFMU({str(fmu)!r})
         f.start()
         assert f.step(0.01)

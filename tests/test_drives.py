@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cedra import scene as sc
-from cedra.driver import RoverFMU
-from cedra.fmu import build_fmu
-from cedra.model import ModelOptions
-from cedra.rover import IDX
+from cedra.models import scene as sc
+from cedra.run.driver import RoverFMU
+from cedra.fmu.packaging import build_fmu
+from cedra.models.plant import ModelOptions
+from cedra.rover.mechanism import IDX
 from model_harness import Built
 
 REPO = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""The toy FMU as built by cedra.fmu.build_fmu: validation, exported symbols, GUID, start values through the
+"""The toy FMU as built by cedra.fmu.packaging.build_fmu: validation, exported symbols, GUID, start values through the
 binary, shipped sources, one variable table behind the XML and the C header."""
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from cedra import fmu as fmu_mod
-from cedra.variables import variables
+from cedra.fmu import packaging as fmu_mod
+from cedra.fmu.variables import variables
 from fmu_harness import Toy
 from toy_model import toy_spec
 

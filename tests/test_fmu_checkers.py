@@ -1,6 +1,6 @@
-"""Independent checkers and importers on a built FMU (see python/cedra/checks.py).
+"""Independent checkers and importers on a built FMU (see python/cedra/fmu/checks.py).
 
-The FMU under test is the toy model built by the FMU builder (`cedra.fmu.build_fmu(toy_model.toy_spec())`),
+The FMU under test is the toy model built by the FMU builder (`cedra.fmu.packaging.build_fmu(toy_model.toy_spec())`),
 once per test session (shared between pytest-xdist workers through a file lock), or any FMU given by the
 environment variable CEDRA_CHECK_FMU (e.g. the rover FMU: `CEDRA_CHECK_FMU=build/x.fmu pytest tests/test_fmu_checkers.py`).
 
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from lxml import etree
 
-from cedra import checks
+from cedra.fmu import checks
 
 POW2_STEP = 2.0 ** -7        # 7 812 500 ns: libcosim and FMPy hand the FMU bit-identical t and h
 DECIMAL_STEP = 0.01          # FMPy's h = t_{k+1} - t_k carries round-off here
@@ -35,7 +35,7 @@ STOP = 1.0                   # simulated time of the comparison runs (a whole nu
 # -------------------------------------------------------------------------------------------------- fixtures
 
 def _build_toy(out_dir: Path) -> Path:
-    from cedra.fmu import build_fmu
+    from cedra.fmu.packaging import build_fmu
     from toy_model import toy_spec
     return Path(build_fmu(toy_spec(), out_dir))
 

@@ -1,9 +1,9 @@
 """The rover FMU leaves its domain loudly: torques that flip the rover end in fmi2Discard naming the reason."""
 import numpy as np
 
-from cedra.driver import RoverFMU
-from cedra.fmu import build_fmu
-from cedra.scene import load_shipped
+from cedra.run.driver import RoverFMU
+from cedra.fmu.packaging import build_fmu
+from cedra.models.scene import load_shipped
 
 
 def test_flipping_torque_is_a_loud_discard(tmp_path):

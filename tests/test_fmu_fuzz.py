@@ -15,7 +15,7 @@ import os
 
 import pytest
 
-from cedra import fuzz
+from cedra.fmu import fuzz
 
 SECONDS = float(os.environ.get("CEDRA_FUZZ_SECONDS", "30"))
 SEED = int(os.environ.get("CEDRA_FUZZ_SEED", "1"))

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cedra.driver import RoverFMU
-from cedra.fmu import build_fmu
-from cedra.scene import load_shipped
-from cedra.simulate import SpeedController
+from cedra.run.driver import RoverFMU
+from cedra.fmu.packaging import build_fmu
+from cedra.models.scene import load_shipped
+from cedra.run.simulate import SpeedController
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples"))
@@ -47,7 +47,7 @@ def with_resource(fmu, out, text):
 def raised_map(fmu, out, dz):
     """The hills FMU with every grid height raised by dz."""
     X, Y, Z = hills.grid()
-    from cedra import heightmap
+    from cedra.mechanics import heightmap
     tmp = heightmap.write(out.with_suffix(".txt"), Z + dz, X[0], Y[0], hills.GRID["dx"], hills.GRID["dy"])
     return with_resource(fmu, out, tmp.read_text())
 
@@ -123,7 +123,7 @@ def test_start_off_the_grid_is_refused(hills_fmu):
 
 def test_driving_off_the_grid_is_a_discard_naming_the_point(hills_fmu, tmp_path):
     """On a flat grid that ends at X = 1 m, full torque drives the front wheels over the edge within 4 s."""
-    from cedra import heightmap
+    from cedra.mechanics import heightmap
     grid = heightmap.write(tmp_path / "short.txt", np.zeros((41, 41)), -1.0, -1.0, 0.05, 0.05).read_text()
     f = RoverFMU(with_resource(hills_fmu, tmp_path / "short.fmu", grid))
     f.start({f"tau[{i}]": 1.0 for i in range(1, 7)})

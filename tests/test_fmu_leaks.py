@@ -14,7 +14,7 @@ import shutil
 
 import pytest
 
-from cedra import fuzz
+from cedra.fmu import fuzz
 
 SCENES = ["bump2d", "flat3d"]
 

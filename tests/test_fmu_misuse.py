@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 import misuse_matrix
-from cedra.controller import CONTROLLERS, controller_spec
-from cedra.fmu import build_fmu
-from cedra.scene import load_shipped, shipped
+from cedra.models.controller import CONTROLLERS, controller_spec
+from cedra.fmu.packaging import build_fmu
+from cedra.models.scene import load_shipped, shipped
 
 REPO = Path(__file__).resolve().parents[1]
 _PATHS: dict[str, Path] = {}

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cedra import checks
-from cedra.driver import RoverFMU
-from cedra.fmu import build_fmu
-from cedra.scene import load_shipped, shipped
+from cedra.fmu import checks
+from cedra.run.driver import RoverFMU
+from cedra.fmu.packaging import build_fmu
+from cedra.models.scene import load_shipped, shipped
 
 REPO = Path(__file__).resolve().parents[1]
 POW2_STEP = 2.0 ** -7            # libcosim and FMPy pass bit-identical (t, h) with this step (see test_fmu_checkers)

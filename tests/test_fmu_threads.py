@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from cedra import fuzz, heightmap
+from cedra.fmu import fuzz
+from cedra.mechanics import heightmap
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples"))

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
-from cedra import heightmap, scene
-from cedra.model import CedraModel, ModelOptions
+from cedra.mechanics import heightmap
+from cedra.models import scene
+from cedra.models.plant import CedraModel, ModelOptions
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples"))
@@ -293,8 +294,8 @@ def test_c_rim_search_on_rough_ground_equals_the_symbolic_search(tmp_path):
     not at the bottom, g'' >= 0 at some, steep faces) the C search's point equals contact.rim_point's, formed
     symbolically through the point external, and its Jacobian equals CasADi's derivative of that search where the
     search converged (a Newton step taken at the end)."""
-    from cedra.contact import rim_point
-    from cedra.terrain import Terrain
+    from cedra.mechanics.contact import rim_point
+    from cedra.mechanics.terrain import Terrain
     rng = np.random.default_rng(21)
     Z = rng.normal(size=(15, 15)) * 0.03
     path = heightmap.write(tmp_path / "rough.txt", Z, -0.35, -0.35, 0.05, 0.05)

@@ -4,8 +4,8 @@ the geometric steering angles against the turn center."""
 import numpy as np
 import pytest
 
-from cedra import kinematics as kin
-from cedra.parameters import DEFAULTS
+from cedra.rover import kinematics as kin
+from cedra.rover.parameters import DEFAULTS
 
 D = DEFAULTS
 RNG = np.random.default_rng(7)

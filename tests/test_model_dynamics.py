@@ -7,10 +7,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from cedra.model import CedraModel, ModelOptions, projection
+from cedra.models.plant import CedraModel, ModelOptions, projection
 from model_harness import Built
-from cedra.parameters import DEFAULTS
-from cedra.rover import FULL_Q, IDX
+from cedra.rover.parameters import DEFAULTS
+from cedra.rover.mechanism import FULL_Q, IDX
 
 D = DEFAULTS
 WEIGHT = (D["m_B"] + D["m_F"] + 6 * D["m_w"]) * D["g"]
@@ -301,7 +301,7 @@ def test_symmetric_run_stays_symmetric(b3):
 
 # ---------------------------------------------------------------- sizes (printed with -s)
 def test_function_sizes():
-    from cedra.scene import load_shipped
+    from cedra.models.scene import load_shipped
     for scene in ("bump2d", "flat3d", "slope3d", "hills3d"):
         opt = load_shipped(scene).options
         t0 = time.perf_counter()

@@ -4,10 +4,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from cedra.model import CedraModel, ModelOptions
-from cedra.parameters import DEFAULTS
-from cedra.rover import four_bar
-from cedra.transforms import rot_x, rot_y, rot_z
+from cedra.models.plant import CedraModel, ModelOptions
+from cedra.rover.parameters import DEFAULTS
+from cedra.rover.mechanism import four_bar
+from cedra.mechanics.transforms import rot_x, rot_y, rot_z
 
 D = DEFAULTS
 

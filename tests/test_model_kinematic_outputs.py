@@ -6,10 +6,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from cedra import kinematics as kin
-from cedra.model import XI_SPEED, ModelOptions
-from cedra.parameters import DEFAULTS
-from cedra.transforms import rot_x, rot_y, rot_z
+from cedra.rover import kinematics as kin
+from cedra.models.plant import XI_SPEED, ModelOptions
+from cedra.rover.parameters import DEFAULTS
+from cedra.mechanics.transforms import rot_x, rot_y, rot_z
 from model_harness import Built
 
 D = DEFAULTS

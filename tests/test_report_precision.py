@@ -6,7 +6,7 @@ import pytest
 from cedra.reports import precision as P
 from cedra.reports.common import Problem, errors, grid, python_run_outputs, reference_outputs, run_casadi, \
     run_fmu, run_scipy, fn_names, position_names
-from cedra.scene import load_shipped
+from cedra.models.scene import load_shipped
 
 T_END = 1.0
 
@@ -17,7 +17,7 @@ def scene_fmu(name, tmp_path_factory):
     p = Path(__file__).resolve().parents[1] / "build" / f"{name}.fmu"
     if p.exists():
         return p
-    from cedra.fmu import build_fmu
+    from cedra.fmu.packaging import build_fmu
     return Path(build_fmu(load_shipped(name).spec(), tmp_path_factory.mktemp("fmu")))
 
 

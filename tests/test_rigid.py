@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from cedra.driver import RoverFMU
-from cedra.fmu import build_fmu
-from cedra.scene import load_shipped, parse
-from cedra.simulate import SpeedController
+from cedra.run.driver import RoverFMU
+from cedra.fmu.packaging import build_fmu
+from cedra.models.scene import load_shipped, parse
+from cedra.run.simulate import SpeedController
 
 WHEELS = range(1, 7)
 

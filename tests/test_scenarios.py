@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from cedra import scenario
+from cedra.run import scenario
 
 REPO = Path(__file__).resolve().parents[1]
 BUILD = REPO / "build"

@@ -2,8 +2,8 @@
 overrides end up as start values of the ModelSpec."""
 import pytest
 
-from cedra import scene as sc
-from cedra.parameters import DEFAULTS
+from cedra.models import scene as sc
+from cedra.rover.parameters import DEFAULTS
 
 BASE = """\
 name = "t3d"

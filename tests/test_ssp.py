@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cedra import scenario, ssp
-from cedra.cosim import DriveLoop
+from cedra.run import scenario
+from cedra.run import ssp
+from cedra.run.cosim import DriveLoop
 
 BUILD = Path(__file__).resolve().parents[1] / "build"
 STOP, STEP = 4.0, 0.01

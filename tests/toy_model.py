@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import casadi as ca
 
-from cedra.spec import ModelSpec, Quantity
+from cedra.contract import ModelSpec, Quantity
 
 
 def toy_spec(name: str = "toy") -> ModelSpec:

@@ -8,9 +8,9 @@ from pathlib import Path
 
 
 def cmd_build(args):
-    from .controller import CONTROLLERS, controller_spec
-    from .fmu import build_fmu
-    from .scene import SceneError, load, load_shipped, shipped
+    from cedra.models.controller import CONTROLLERS, controller_spec
+    from cedra.fmu.packaging import build_fmu
+    from cedra.models.scene import SceneError, load, load_shipped, shipped
     names = args.scenes or shipped() + list(CONTROLLERS)
     for name in names:
         t0 = time.perf_counter()
@@ -27,16 +27,16 @@ def cmd_build(args):
         path = build_fmu(spec, Path(args.out))
         print(f"{spec.name}: {path} (model {t1 - t0:.1f} s, C code and compile {time.perf_counter() - t1:.1f} s)")
     if not args.scenes:
-        from .ssp import SYSTEMS, build_system
+        from cedra.run.ssp import SYSTEMS, build_system
         for name in SYSTEMS:
             print(f"{name}: {build_system(name, Path(args.out))} (SSP: plant + drive controller)")
     return 0
 
 
 def cmd_simulate(args):
-    from . import scenario, simulate
+    from cedra.run import scenario, simulate
     if args.list:
-        print(f"{scenario.MAIN_JOB:18s} the main job: the paper's bump run (cedra.simulate)")
+        print(f"{scenario.MAIN_JOB:18s} the main job: the paper's bump run (cedra.run.simulate)")
         for name, line in scenario.scenarios().items():
             print(f"{name:18s} {line}")
         return 0
@@ -53,25 +53,30 @@ def cmd_simulate(args):
 
 
 def cmd_compare(args):
-    from . import compare
+    from cedra.run import compare
     return compare.main(args.build, args.out, args.stop_time)
 
 
 def cmd_bench(args):
-    from . import bench
+    from cedra.reports import bench
     return bench.main(args)
 
 
 def cmd_report(args):
     if args.which == "precision":
-        from .reports import precision as r
+        from cedra.reports import precision as r
     else:
-        from .reports import stability as r
+        from cedra.reports import stability as r
     return r.main(args)
 
 
+def cmd_sweep(args):
+    from cedra.run import sweep
+    return sweep.main(args)
+
+
 def cmd_fuzz(args):
-    from . import fuzz
+    from cedra.fmu import fuzz
     return fuzz.main(args)
 
 
@@ -105,11 +110,14 @@ def main(argv=None):
     r.add_argument("--build", default="build")
     r.add_argument("--out", default="out/report")
     r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")
-    from .fuzz import add_parser as add_fuzz_parser
+    r.add_argument("--quiet", action="store_true", help="no per-run lines, no progress (the report and summary only)")
+    from cedra.fmu.fuzz import add_parser as add_fuzz_parser
+    from cedra.run.sweep import add_parser as add_sweep_parser
     add_fuzz_parser(sub)
+    add_sweep_parser(sub)
     args = ap.parse_args(argv)
     commands = {"build": cmd_build, "simulate": cmd_simulate, "compare": cmd_compare, "bench": cmd_bench,
-                "report": cmd_report, "fuzz": cmd_fuzz}
+                "report": cmd_report, "fuzz": cmd_fuzz, "sweep": cmd_sweep}
     return commands[args.cmd](args)
 
 

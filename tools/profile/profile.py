@@ -25,8 +25,8 @@ sys.path.insert(0, str(REPO / "python"))
 
 
 def state_on_the_run(fmu, t_end):
-    from cedra.driver import RoverFMU
-    from cedra.simulate import SAMPLE, SpeedController
+    from cedra.run.driver import RoverFMU
+    from cedra.run.simulate import SAMPLE, SpeedController
     f = RoverFMU(fmu)
     ctrl = SpeedController()
     f.start()
@@ -51,7 +51,7 @@ def main():
     ap.add_argument("--time", type=float, default=6.0)
     ap.add_argument("--keep", help="a directory to keep the state file, the driver and callgrind's outputs in")
     args = ap.parse_args()
-    from cedra.scene import load_shipped
+    from cedra.models.scene import load_shipped
     sc = load_shipped(args.scene)
     spec = sc.spec()
     src = Path(args.build) / args.scene / "sources"

@@ -283,7 +283,7 @@ class FastFMU:
     """RoverFMU plus vectorized getReal of a fixed list of outputs (one ctypes call per read)."""
 
     def __init__(self, path):
-        from ..driver import RoverFMU
+        from cedra.run.driver import RoverFMU
         self.f = RoverFMU(path)
 
     def vrs(self, names):
@@ -297,7 +297,7 @@ def run_fmu(fmu_path, prob: Problem, sched: Schedule, q0, t_end, comm, method="r
     record: output names read at the grid points that are multiples of record_every (default: every point).
     check_all: read every Real output at every communication point and flag any non-finite value.
     wall_budget: stop (ok False, extra['timeout'] True) when the run has taken longer than this many seconds."""
-    from ..driver import RoverFMU
+    from cedra.run.driver import RoverFMU
     fmu = RoverFMU(fmu_path)
     names = list(record or [])
     real_out = [v for v in fmu.md.modelVariables if v.causality == "output" and v.type == "Real"]

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import load_shipped
-from .common import (Problem, Run, Schedule, errors, fmt, fmu_path, grid, md_table, position_names, fn_names,
+from cedra.models.scene import load_shipped
+from cedra.reports.common import (Problem, Run, Schedule, errors, fmt, fmu_path, grid, md_table, position_names, fn_names,
                      python_run_outputs, reference_outputs, run_casadi, run_fmu, run_scipy, torques)
 
 SAMPLE = 0.1            # input schedule period = the coarsest communication step

@@ -16,9 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..spec import CHECK_REASONS
-from ..scene import load_shipped
-from .common import Problem, Schedule, fmt, fmu_path, md_table, run_fmu, torques
+from cedra.contract import CHECK_REASONS
+from cedra.models.scene import load_shipped
+from cedra.run.progress import Progress
+from cedra.reports.common import Problem, Schedule, fmt, fmu_path, md_table, run_fmu, torques
 
 ENERGY_REL_TOL = 1e-5      # allowed energy increase, relative to |E(0)|, in zero-torque dissipative cases
 WALL_BUDGET = 60.0         # s of wall time per run; a run still going is stopped and reported as such
@@ -167,7 +168,7 @@ def reference_energy_increase(case: Case):
     exactly passive), so that the FMU is only charged with what its solver adds."""
     if case.name in _EREF:
         return _EREF[case.name]
-    from .common import grid, python_run_outputs, run_casadi
+    from cedra.reports.common import grid, python_run_outputs, run_casadi
     prob, q0, u0 = start_state(case)
     tg = grid(case.t_end, min(case.comm, 0.01))
     r = run_casadi(prob, case.schedule, prob.x0(q0, u0), tg, "cvodes", 1e-10)
@@ -284,18 +285,24 @@ def main(args):
     out = Path(getattr(args, "out", "out/report"))
     build = getattr(args, "build", "build")
     t0 = time.perf_counter()
+    quiet = getattr(args, "quiet", False)
     results = []
     missing = set()
-    for case in cases(quick):
+    todo = cases(quick)
+    progress = Progress(len(todo) * len(SOLVERS), "report stability", unit="runs", quiet=quiet)
+    for case in todo:
         if not fmu_path(build, case.scene).exists():
             missing.add(case.scene)
             continue
         for solver in SOLVERS:
             r = run_case(case, solver, build)
             results.append(r)
-            print(f"{case.name[:60]:60s} {solver:7s} {'finished' if r.finished else r.status:9s} "
-                  f"{r.wall:7.2f} s steps {r.steps}" + ("" if r.acceptable else "  FAIL") +
-                  (f"  [{r.reason[:100]}]" if r.reason else ""), flush=True)
+            if not quiet:
+                print(f"{case.name[:60]:60s} {solver:7s} {'finished' if r.finished else r.status:9s} "
+                      f"{r.wall:7.2f} s steps {r.steps}" + ("" if r.acceptable else "  FAIL") +
+                      (f"  [{r.reason[:100]}]" if r.reason else ""), flush=True)
+            progress(len(results), f"{sum(not r.acceptable for r in results)} not acceptable")
+    progress.done()
     if missing:
         print(f"no FMU for {sorted(missing)} in {build}: build first (python -m cedra build)", file=sys.stderr)
     cmd = "python -m cedra report stability" + (" --quick" if quick else "")

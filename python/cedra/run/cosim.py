@@ -1,4 +1,4 @@
-"""The project's own co-simulation master: a plant FMU and the drive controller FMU (cedra.controller) connected
+"""The project's own co-simulation master: a plant FMU and the drive controller FMU (cedra.models.controller) connected
 name to name, stepped with a fixed communication step h. Conventions:
 
   "plant-first" (Gauss-Seidel, the default): the plant steps [t, t + h] with the controller's held outputs, then
@@ -11,7 +11,7 @@ name to name, stepped with a fixed communication step h. Conventions:
                 own start values), time advances by t += h.
   "libcosim"    what OSP libcosim's fixed-step master does: Jacobi, time in integer nanoseconds (t_k = k h_ns
                 / 1e9), the initial outputs passed to the connected inputs after initialization.
-Set to a master's convention, this master reproduces that master's run of the same SSP package (cedra.ssp).
+Set to a master's convention, this master reproduces that master's run of the same SSP package (cedra.run.ssp).
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from .driver import RoverFMU
+from cedra.run.driver import RoverFMU
 
 CONVENTIONS = ("plant-first", "jacobi", "fmpy-ssp", "libcosim")
 

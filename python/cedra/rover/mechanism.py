@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from .kane import Body
-from .transforms import apply, e_xz, homogeneous, rot_x, rot_y, rot_z, rotation, translation
+from cedra.mechanics.kane import Body
+from cedra.mechanics.transforms import apply, e_xz, homogeneous, rot_x, rot_y, rot_z, rotation, translation
 
 FULL_Q = ["x", "y", "z", "yaw", "pitch", "roll", "theta1", "theta2", "theta4", "theta3", "theta6",
           "gamma1", "gamma2", "gamma3", "gamma4", "gamma5", "gamma6"]

@@ -27,8 +27,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .codegen import GENERATED_CFLAGS_RELAX
-from .fmu import REPO_ROOT
+from cedra.fmu.codegen import GENERATED_CFLAGS_RELAX
+from cedra.fmu.packaging import REPO_ROOT
 
 FUZZ_C = REPO_ROOT / "tools" / "fuzz" / "fmu_fuzz.c"
 CACHE = REPO_ROOT / "build" / "fuzz"
@@ -61,8 +61,8 @@ def resolve_fmu(target: str, build_dir=REPO_ROOT / "build") -> Path:
         return path.resolve()
     path = Path(build_dir) / f"{target}.fmu"
     if not path.exists():
-        from .fmu import build_fmu
-        from .scene import load_shipped
+        from cedra.fmu.packaging import build_fmu
+        from cedra.models.scene import load_shipped
         path = build_fmu(load_shipped(target).spec(), Path(build_dir))
     return path.resolve()
 
@@ -403,6 +403,6 @@ def add_parser(sub):
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser(prog="python -m cedra.fuzz")
+    ap = argparse.ArgumentParser(prog="python -m cedra.fmu.fuzz")
     add_parser(ap.add_subparsers(dest="cmd", required=True))
     sys.exit(main(ap.parse_args()))

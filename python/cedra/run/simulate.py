@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .driver import RoverFMU
+from cedra.run.driver import RoverFMU
 
 SAMPLE = 0.01          # controller period = communication step, s
 V_REF, KP, KI, TAU_MAX = 0.2, 3.0, 6.0, 4.0
@@ -16,15 +16,18 @@ V_REF, KP, KI, TAU_MAX = 0.2, 3.0, 6.0, 4.0
 
 @dataclass
 class SpeedController:
-    """u = Kp e + Ki (I + e dt), all six torques = clip(u, -4, 4); no integration while clipped (anti-windup)."""
+    """u = Kp e + Ki (I + e dt), all six torques = clip(u, -tau_max, tau_max) (the paper: 4 N.m); no integration
+    while clipped (anti-windup). v_ref and tau_max are what a sweep may vary."""
     integral: float = 0.0
+    v_ref: float = V_REF
+    tau_max: float = TAU_MAX
 
     def __call__(self, v):
-        e = V_REF - v
+        e = self.v_ref - v
         u = KP * e + KI * (self.integral + e * SAMPLE)
-        if abs(u) <= TAU_MAX:
+        if abs(u) <= self.tau_max:
             self.integral += e * SAMPLE
-        return float(np.clip(u, -TAU_MAX, TAU_MAX))
+        return float(np.clip(u, -self.tau_max, self.tau_max))
 
 
 def wheel_names(quantity):

@@ -25,9 +25,9 @@ from __future__ import annotations
 
 import casadi as ca
 
-from .kinematics import KIN_PARAMS, drive_expressions, drive_symbols
-from .parameters import DEFAULTS, ROVER
-from .spec import ModelSpec, Quantity
+from cedra.rover.kinematics import KIN_PARAMS, drive_expressions, drive_symbols
+from cedra.rover.parameters import DEFAULTS, ROVER
+from cedra.contract import ModelSpec, Quantity
 
 WHEELS = range(1, 7)
 MODES = {"equal_torques": 0, "inverse_kinematics": 1}

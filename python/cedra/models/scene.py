@@ -32,11 +32,10 @@ from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 
-from . import heightmap
-from .model import CedraModel, ModelOptions, input_table, param_table, projection
-from .spec import ModelSpec
-from .variables import MAX_STEPS_LIMIT, MAX_WALL_LIMIT
-from .terrain import KINDS
+from cedra.mechanics import heightmap
+from cedra.models.plant import CedraModel, ModelOptions, input_table, param_table, projection
+from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, ModelSpec
+from cedra.mechanics.terrain import KINDS
 
 SOLVERS = {"rk4": 0, "dopri5": 1, "rodas4": 2}
 TOP_KEYS = {"name", "description", "dims", "terrain", "heightmap", "contact", "steering", "locked_wheels",
@@ -222,10 +221,10 @@ def load(path) -> Scene:
 
 
 def shipped() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("cedra.scenes").iterdir() if p.name.endswith(".toml"))
+    return sorted(p.name[:-5] for p in resources.files("cedra.models.scenes").iterdir() if p.name.endswith(".toml"))
 
 
 def load_shipped(name: str) -> Scene:
     if name not in shipped():
         raise SceneError(f"no shipped scene {name!r} (shipped: {', '.join(shipped())})")
-    return load(Path(str(resources.files("cedra.scenes") / f"{name}.toml")))
+    return load(Path(str(resources.files("cedra.models.scenes") / f"{name}.toml")))

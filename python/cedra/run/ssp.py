@@ -17,7 +17,7 @@ The masters' conventions (both step every FMU from the values of the last commun
          which run_fmpy builds from the same file's bindings with fmpy's own SSD reader.
   libcosim  counts time in integer nanoseconds; after initialization it passes the initial outputs to the
          connected inputs, so the first step already uses the plant's settled start.
-cedra.cosim.DriveLoop reproduces either with convention="fmpy-ssp" or "libcosim".
+cedra.run.cosim.DriveLoop reproduces either with convention="fmpy-ssp" or "libcosim".
 """
 from __future__ import annotations
 
@@ -185,7 +185,7 @@ def run_libcosim(ssp_path, stop_time: float, step: float, record=RECORDED, timeo
                    record=[[name, pv[name].valueReference] for name in record if name in pv])
         req_path = Path(tmp, "req.json")
         req_path.write_text(json.dumps(req))
-        r = subprocess.run([sys.executable, "-m", "cedra.ssp", str(req_path)], capture_output=True, text=True,
+        r = subprocess.run([sys.executable, "-m", "cedra.run.ssp", str(req_path)], capture_output=True, text=True,
                            timeout=timeout)
         if r.returncode != 0:
             raise RuntimeError(f"libcosim failed (rc {r.returncode}):\n{r.stderr[-4000:]}")

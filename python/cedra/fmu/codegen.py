@@ -9,7 +9,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from .spec import ModelSpec
+from cedra.contract import ModelSpec
 
 CODEGEN_OPTIONS = {"with_header": True, "casadi_real": "double", "casadi_int": "long long int",
                    "with_mem": False, "verbose": False, "mex": False, "cpp": False, "main": False}

@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import csv
 import importlib.util
-import sys
-import time
 from pathlib import Path
 
-from .fmu import REPO_ROOT
+from cedra.fmu.packaging import REPO_ROOT
+from cedra.run.progress import Progress
 
 EXAMPLES = REPO_ROOT / "examples"
-MAIN_JOB = "bump2d"                      # `simulate bump2d` stays the main job (cedra.simulate)
+MAIN_JOB = "bump2d"                      # `simulate bump2d` stays the main job (cedra.run.simulate)
 
 
 class ScenarioError(ValueError):
@@ -28,9 +27,9 @@ def fmu(name: str, build_dir="build") -> Path:
     path = Path(build_dir) / f"{name}.fmu"
     if path.exists():
         return path
-    from .controller import CONTROLLERS, controller_spec
-    from .fmu import build_fmu
-    from .scene import load_shipped, shipped
+    from cedra.models.controller import CONTROLLERS, controller_spec
+    from cedra.fmu.packaging import build_fmu
+    from cedra.models.scene import load_shipped, shipped
     if name in CONTROLLERS:
         spec = controller_spec(CONTROLLERS[name])
     elif name in shipped():
@@ -40,41 +39,10 @@ def fmu(name: str, build_dir="build") -> Path:
     return build_fmu(spec, build_dir)
 
 
-class Progress:
-    """A progress bar on stderr for simulated time, shown once a run has taken more than `after` seconds of wall
-    time: redrawn in place on a terminal, a plain line every quarter otherwise; nothing when quiet."""
-
-    def __init__(self, total: float, label: str, quiet: bool = False, after: float = 2.0):
-        self.total, self.label, self.quiet, self.after = total, label, quiet, after
-        self.start = time.perf_counter()
-        self.tty = sys.stderr.isatty()
-        self.shown = False
-        self.next_quarter = 0.25
-
-    def __call__(self, t: float):
-        if self.quiet:
-            return
-        wall = time.perf_counter() - self.start
-        if wall < self.after:
-            return
-        frac = min(1.0, t / self.total) if self.total > 0 else 1.0
-        if self.tty:
-            bar = "#" * int(30 * frac)
-            sys.stderr.write(f"\r{self.label} [{bar:<30}] {t:6.2f}/{self.total:g} s simulated, {wall:5.1f} s")
-            self.shown = True
-        elif frac >= self.next_quarter:
-            sys.stderr.write(f"{self.label}: {t:.2f} of {self.total:g} s simulated ({wall:.1f} s)\n")
-            self.next_quarter += 0.25
-
-    def done(self):
-        if self.shown:
-            sys.stderr.write("\n")
-
-
 def run_loop(loop, label: str, stop_time: float, step: float, commands, record, quiet: bool = False):
     """loop.run with a progress bar; the loop is closed afterwards; RuntimeError with the FMUs' last messages if the
     run stopped early. Returns the LoopResult."""
-    progress = Progress(stop_time, label, quiet)
+    progress = Progress(stop_time, label, quiet=quiet)
     try:
         r = loop.run(stop_time, step, commands, record, progress)
     finally:
@@ -83,6 +51,20 @@ def run_loop(loop, label: str, stop_time: float, step: float, commands, record, 
     if not r.ok:
         raise RuntimeError(f"{label} stopped early: " + "; ".join(r.messages[-2:]))
     return r
+
+
+def parameters(declared: dict, given: dict | None) -> dict:
+    """A scenario's parameter values: its PARAMETERS' defaults (name -> (default, min, max, meaning)) updated by
+    `given` (a sweep's run); ScenarioError for an unknown name or a value out of range."""
+    values = {k: d[0] for k, d in declared.items()}
+    for k, v in (given or {}).items():
+        if k not in declared:
+            raise ScenarioError(f"unknown parameter {k!r} (parameters: {', '.join(declared)})")
+        lo, hi = declared[k][1], declared[k][2]
+        if not lo <= v <= hi:
+            raise ScenarioError(f"{k} = {v:g} is outside [{lo:g}, {hi:g}]")
+        values[k] = float(v)
+    return values
 
 
 def write_csv(path, names, rows) -> Path:

@@ -27,7 +27,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 SOURCE = REPO_ROOT / "fmu_src" / "heightmap.c"
 HOST_DIR = REPO_ROOT / "build" / "host"
 EXTERNAL_NAME = "cedra_heightmap"

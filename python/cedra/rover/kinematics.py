@@ -29,9 +29,9 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from .parameters import DEFAULTS
-from .rover import four_bar
-from .transforms import homogeneous, rot_x, rot_y, rot_z, translation
+from cedra.rover.parameters import DEFAULTS
+from cedra.rover.mechanism import four_bar
+from cedra.mechanics.transforms import homogeneous, rot_x, rot_y, rot_z, translation
 
 JOINTS = ("theta1", "theta2", "theta4", "theta3", "theta6")   # the joint-angle vector all functions take
 V_NAMES = ("xdot", "ydot", "zdot", "yawdot", "pitchdot", "rolldot")

@@ -5,8 +5,8 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from .terrain import Terrain
-from .transforms import unit
+from cedra.mechanics.terrain import Terrain
+from cedra.mechanics.transforms import unit
 
 N_SAMPLES = 13          # beta = k pi/12, k = -6..6: the lower half of the rim
 N_NEWTON = 4

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .simulate import run_bump
+from cedra.run.simulate import run_bump
 
 SHOWN = [1, 2, 5, 6]
 

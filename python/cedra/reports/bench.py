@@ -10,7 +10,7 @@ Figures are printed, never asserted on.
 
 Then, when the optional dependency mujoco is importable (`pip install -e '.[bench]'`, ./build.sh does it), the
 MuJoCo side by side of issue 13 (`side_by_side`): the paper's 15 s run under the spec section 10 speed controller
-on MuJoCo (cedra.mujoco_model) on the bump as a height field (1 cm cells), on a plane and on the hills3d grid as
+on MuJoCo (cedra.reports.mujoco_model) on the bump as a height field (1 cm cells), on a plane and on the hills3d grid as
 a height field, at dt 1, 0.5 and 0.2 ms, and through the FMUs bump2d, bump3d, flat3d and hills3d: CPU time
 (time.process_time), real-time factor, x at 6 s, peak normal force, steps, and the ratios MuJoCo CPU / FMU CPU
 of the matching pairs. `--quick`: only that table, 1 s runs (the tests); `--side-by-side`: only that table.
@@ -73,9 +73,9 @@ def time_python_call(fn: ca.Function, args, n=2000) -> float:
 
 
 def bench_scene(name, build, stop_time):
-    from .reports.common import Problem, fmu_path, grid, run_fmu, run_scipy
-    from .reports.precision import flat3d_schedule, pi_schedule
-    from .scene import load_shipped
+    from cedra.reports.common import Problem, fmu_path, grid, run_fmu, run_scipy
+    from cedra.reports.precision import flat3d_schedule, pi_schedule
+    from cedra.models.scene import load_shipped
     scene = load_shipped(name)
     prob = Problem(scene)
     sched = (pi_schedule if name == "bump2d" else flat3d_schedule)(prob, stop_time)
@@ -121,7 +121,7 @@ CONTACT_RUNS = {   # label: (scene, settings)
 def bench_contact(build, stop_time):
     """The bump run (the main job's speed controller) with the compliant and the rigid contact model (the rigid
     one also with DOPRI5: its held-mode steps are not stiff)."""
-    from .simulate import run_bump
+    from cedra.run.simulate import run_bump
     rows = {}
     for label, (name, settings) in CONTACT_RUNS.items():
         path = build / f"{name}.fmu"
@@ -206,9 +206,9 @@ def fmu_closed_loop(path, stop_time, settings: dict | None = None, label=""):
     needs (body.vx for the controller, body.x, the six wheel[i].Fn) in one fmi2GetReal per sample, so the CPU
     time is the FMU's and not the Python glue's. Timed with time.process_time from fmi2Instantiate (the
     static settle included) to the last step; the FMU's unzip is not timed."""
-    from .driver import RoverFMU
-    from .mujoco_model import Result
-    from .simulate import SAMPLE, SpeedController
+    from cedra.run.driver import RoverFMU
+    from cedra.reports.mujoco_model import Result
+    from cedra.run.simulate import SAMPLE, SpeedController
     f = RoverFMU(path)
     vr = [f.vars[n].valueReference for n in ["body.vx", "body.x"] + [f"wheel[{i}].Fn" for i in range(1, 7)]]
     tau_vr = [f.vars[f"tau[{i}]"].valueReference for i in range(1, 7)]
@@ -239,8 +239,8 @@ def fmu_closed_loop(path, stop_time, settings: dict | None = None, label=""):
 def side_by_side(build: Path, stop_time=SIDE_STOP, dts=MUJOCO_DTS, log=print) -> dict:
     """Every row of the table: MuJoCo on the bump (height field), on a plane and on the hills grid (height field)
     at each dt, and the FMUs; label -> Result (None: the FMU is not built)."""
-    from . import mujoco_model as mm
-    from .scene import load_shipped
+    from cedra.reports import mujoco_model as mm
+    from cedra.models.scene import load_shipped
     rows = {}
     for name, (scene, terrain) in MUJOCO_RUNS.items():
         sc = load_shipped(scene)
@@ -279,14 +279,14 @@ def side_by_side_table(rows: dict, stop_time: float) -> list[str]:
 
 
 def print_side_by_side(build: Path, stop_time: float, dts=MUJOCO_DTS) -> int:
-    from . import mujoco_model as mm
+    from cedra.reports import mujoco_model as mm
     if not mm.available():
         print("\nMuJoCo side by side: skipped, mujoco is not installed (pip install -e '.[bench]'; ./build.sh "
               "installs it)")
         return 0
     import mujoco
     print(f"\nMuJoCo side by side (issue 13): the paper's run, {stop_time:g} s, the spec section 10 speed "
-          f"controller every 0.01 s; MuJoCo {mujoco.__version__} (cedra.mujoco_model, Euler, settled "
+          f"controller every 0.01 s; MuJoCo {mujoco.__version__} (cedra.reports.mujoco_model, Euler, settled "
           f"{mm.SETTLE:g} s untimed), FMUs at their scene defaults; CPU = time.process_time; peak Fn = the largest "
           f"wheel normal force at the 0.01 s samples")
     rows = side_by_side(build, stop_time, dts)

@@ -6,8 +6,8 @@ from typing import Callable
 
 import casadi as ca
 
-from . import heightmap
-from .spec import Quantity
+from cedra.mechanics import heightmap
+from cedra.contract import Quantity
 
 TERRAIN_INPUTS = {
     "terrain_h": Quantity("terrain_h", 0.14625, "m", "terrain feature height (bump, step, waves)"),
@@ -54,7 +54,7 @@ KINDS = {
     "bump3d": TerrainKind("bump3d", ("terrain_h", "terrain_w", "terrain_x0", "terrain_y0"), _bump3d, False),
     "step": TerrainKind("step", ("terrain_h", "terrain_x0", "terrain_s"), _step, False),
     "waves": TerrainKind("waves", ("terrain_h", "terrain_w"), _waves, False),
-    # a grid shipped in the FMU's resources (cedra.heightmap): the height is an external function, no inputs
+    # a grid shipped in the FMU's resources (cedra.mechanics.heightmap): the height is an external function, no inputs
     "heightmap": TerrainKind("heightmap", (), None, False),
 }
 
@@ -63,8 +63,8 @@ class Terrain:
     """A terrain kind bound to its symbolic inputs: height, gradient, Hessian and unit normal.
 
     Derivatives are outputs of one function, never taken by differentiating the terrain inside the model: the
-    heightmap is an external C function (cedra.heightmap) whose derivative chain is finite, so the model uses
-    h, gradient and Hessian explicitly (one level of symbolic differentiation of the model remains possible).
+    heightmap is an external C function (cedra.mechanics.heightmap) whose derivative chain is finite, so the model
+    uses h, gradient and Hessian explicitly (one level of symbolic differentiation of the model remains possible).
 
     The heightmap's wheel contact (external_rim, the default for kind "heightmap"): the whole rim search of a
     wheel is one call of the C function cedra_rim_contact, which returns the contact point, the height and

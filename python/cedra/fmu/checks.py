@@ -23,7 +23,7 @@ from `interval` by round-off unless the step is a power of two seconds. With a p
 (e.g. 2**-7 s = 7812500 ns) both hand the FMU identical (t, h) and results are bit-identical; with 0.01 s
 they differ by the FMU's sensitivity to ~1e-18 s perturbations of h (for a toy Euler model: ~1e-16 relative).
 
-Run `python python/cedra/checks.py vdmcheck|validate|roundtrip FMU` for a quick look from the shell.
+Run `python python/cedra/fmu/checks.py vdmcheck|validate|roundtrip FMU` for a quick look from the shell.
 """
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ import time
 import zipfile
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 VDMCHECK_VERSION = "1.1.3"
 VDMCHECK_POM = REPO_ROOT / "tools" / "vdmcheck" / "pom.xml"
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .spec import ModelSpec
+from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, ModelSpec
 
 SOLVER_METHODS = ("rk4", "dopri5", "rodas4")          # solver.method = index (enum solver_method in solver.h)
 KINDS = ("par", "inp", "out", "q_start", "u_start", "settle", "solver", "stat")
@@ -30,8 +30,6 @@ KINDS = ("par", "inp", "out", "q_start", "u_start", "settle", "solver", "stat")
 # answers about as fast as a user waits for one call; 100000 attempted steps is ~1-4 s of the 2D/3D models on
 # this machine and makes the bound reproducible when the clock would not be (a loaded machine)
 SOLVER_DEFAULTS = dict(method="dopri5", tol=1e-6, h_max=0.01, max_steps=100000, max_wall_time=1.0)
-MAX_STEPS_LIMIT = 2**31 - 1       # an fmi2Integer
-MAX_WALL_LIMIT = 1e6              # s: finite, so a call always has a bound
 
 
 @dataclass(frozen=True)

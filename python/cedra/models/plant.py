@@ -14,12 +14,12 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from . import parameters
-from .contact import compliant_force, contact_geometry
-from .kane import KaneSystem
-from .rover import FULL_Q, IDX, describe, drive_torque
-from .spec import ModelSpec, Quantity
-from .terrain import KINDS, TERRAIN_INPUTS, Terrain
+from cedra.rover import parameters
+from cedra.mechanics.contact import compliant_force, contact_geometry
+from cedra.mechanics.kane import KaneSystem
+from cedra.rover.mechanism import FULL_Q, IDX, describe, drive_torque
+from cedra.contract import ModelSpec, Quantity
+from cedra.mechanics.terrain import KINDS, TERRAIN_INPUTS, Terrain
 
 PLANAR_MAP = {"y": None, "yaw": None, "roll": None, "theta2": "theta1", "theta3": None, "theta6": None,
               "gamma3": "gamma1", "gamma4": "gamma2"}

@@ -2,7 +2,7 @@
 where the robot's numbers live; the symbolic model reads them as symbols (they are FMU parameters)."""
 from math import atan2, sqrt
 
-from .spec import Quantity as Q
+from cedra.contract import Quantity as Q
 
 ROVER = [
     Q("R_w", 0.065, "m", "wheel radius", min=1e-4),

@@ -50,6 +50,10 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 
+# the largest solver budgets of one fmi2DoStep a scene or a user may set (the FMU's variables say the same)
+MAX_STEPS_LIMIT = 2**31 - 1       # an fmi2Integer
+MAX_WALL_LIMIT = 1e6              # s: finite, so a call always has a bound
+
 # cedra_check's codes (the C glue has the same table in model_glue.c)
 CHECK_REASONS = {
     0: "the state is outside the model's domain",

@@ -1,5 +1,5 @@
 """Build an FMI 2.0 Co-Simulation FMU from a ModelSpec: generate C, the variable header and modelDescription.xml
-(all from cedra.variables), compile the shared library, check its exported symbols, package.
+(all from cedra.fmu.variables), compile the shared library, check its exported symbols, package.
 
     build_fmu(spec, build_dir) -> Path of <build_dir>/<spec.name>.fmu
 
@@ -16,12 +16,12 @@ import subprocess
 import zipfile
 from pathlib import Path
 
-from .codegen import GENERATED_CFLAGS_RELAX, generate_c
-from .heightmap import RESOURCE_NAME
-from .spec import ModelSpec
-from .variables import variables
+from cedra.fmu.codegen import GENERATED_CFLAGS_RELAX, generate_c
+from cedra.mechanics.heightmap import RESOURCE_NAME
+from cedra.contract import ModelSpec
+from cedra.fmu.variables import variables
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 FMU_SRC = REPO_ROOT / "fmu_src"
 CC = "gcc"
 CFLAGS = ["-std=c99", "-O2", "-fPIC", "-Wall", "-Wextra", "-Werror", "-fvisibility=hidden"]

@@ -1,0 +1,1 @@
+"""The CEDRA rover: its mechanism (transform chains, bodies, joint forces), its numbers, the paper's kinematics."""

@@ -1,0 +1,115 @@
+"""The [map] of a sweep: a verdict (e.g. climbed yes/no) over two grid parameters, one panel per value of a third,
+drawn from the sweep's table to <out>/<name>.png:
+
+    [map]
+    x = "terrain_h"              # grid parameters on the axes
+    y = "mu"
+    panels = "terrain_w"         # optional: one panel per grid value
+    verdict = "climbed"          # an output that is 1 (yes) or 0 (no)
+    x_scale = 0.065              # optional: show x / x_scale (e.g. in wheel radii) ...
+    x_label = "h / R_w"          # ... under this label (likewise panel_scale, panel_label)
+    mark = {terrain_h = 0.14625, terrain_w = 0.14625, mu = 0.8, label = "the paper's run"}
+
+Runs that failed (status other than ok) are drawn grey: a failure to simulate is not a failure to climb.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+KEYS = {"x", "y", "panels", "verdict", "x_scale", "x_label", "panel_scale", "panel_label", "y_label", "mark", "title"}
+
+
+def check_map(path, spec, sw) -> None:
+    from cedra.run.sweep import SweepError
+
+    def fail(key, reason):
+        raise SweepError(f"{path}: map.{key}: {reason}")
+    if not isinstance(spec, dict):
+        raise SweepError(f"{path}: map: expected a table")
+    for k in spec:
+        if k not in KEYS:
+            fail(k, f"unknown key (known: {', '.join(sorted(KEYS))})")
+    for k in ("x", "y", "verdict"):
+        if k not in spec:
+            fail(k, "missing")
+    for k in ("x", "y", "panels"):
+        if k in spec and spec[k] not in sw.grid:
+            fail(k, f"{spec[k]!r} is not a [grid] parameter of this sweep (grid: {', '.join(sw.grid)})")
+    if spec["verdict"] not in sw.outputs:
+        fail("verdict", f"{spec['verdict']!r} is not one of this sweep's outputs ({', '.join(sw.outputs)})")
+    for k in ("x_scale", "panel_scale"):
+        if k in spec and not (isinstance(spec[k], (int, float)) and spec[k] > 0):
+            fail(k, f"expected a number > 0, got {spec[k]!r}")
+    mark = spec.get("mark", {})
+    if mark and not (isinstance(mark, dict) and spec["x"] in mark and spec["y"] in mark):
+        fail("mark", f"expected a table with {spec['x']} and {spec['y']} (and optionally label)")
+    for name in mark:
+        if name != "label" and name not in sw.grid:
+            fail(f"mark.{name}", f"not a [grid] parameter of this sweep (grid: {', '.join(sw.grid)})")
+
+
+def _close(a, b) -> bool:
+    return abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))
+
+
+def draw(sw, rows: list[dict] | None = None) -> Path:
+    """Draw the map from the sweep's table; returns the PNG's path."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+    from cedra.run.sweep import read_table
+
+    spec = sw.map
+    rows = rows if rows is not None else read_table(sw.table)
+    xs, ys = sw.grid[spec["x"]], sw.grid[spec["y"]]
+    panels = sw.grid[spec["panels"]] if "panels" in spec else [None]
+    xscale, pscale = spec.get("x_scale", 1.0), spec.get("panel_scale", 1.0)
+    mark = spec.get("mark", {})
+    # the mark goes in the panel nearest its value of the panel parameter (every panel's if it has none)
+    mark_panel = (min(panels, key=lambda v: abs(v - mark[spec['panels']]))
+                  if 'panels' in spec and spec['panels'] in mark else None)
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels) + 1, 4.2), sharey=True, squeeze=False)
+    cmap = ListedColormap(["#d9534f", "#5cb85c", "#bbbbbb"])      # 0 fails, 1 climbs, 2 the run failed
+    for ax, pv in zip(axes[0], panels):
+        grid = np.full((len(ys), len(xs)), np.nan)
+        for r in rows:
+            if pv is not None and not _close(float(r[spec["panels"]]), pv):
+                continue
+            ix = [k for k, v in enumerate(xs) if _close(float(r[spec["x"]]), v)]
+            iy = [k for k, v in enumerate(ys) if _close(float(r[spec["y"]]), v)]
+            if not ix or not iy:
+                continue
+            ok = r["status"] == "ok"
+            grid[iy[0], ix[0]] = 2 if not ok else (1 if float(r[spec["verdict"]]) >= 0.5 else 0)
+        ax.pcolormesh(_edges(np.array(xs) / xscale), _edges(np.array(ys)), np.ma.masked_invalid(grid), cmap=cmap,
+                      vmin=0, vmax=2, shading="flat", edgecolors="white", linewidth=0.3)
+        if mark and (mark_panel is None or pv == mark_panel):
+            ax.plot(mark[spec["x"]] / xscale, mark[spec["y"]], marker="*", ms=16, mec="k", mfc="gold", ls="none",
+                    label=mark.get("label", "marked"))
+            ax.legend(loc="lower right", fontsize=8)
+        if pv is not None:
+            ax.set_title(f"{spec.get('panel_label', spec['panels'])} = {pv / pscale:.3g}", fontsize=10)
+        ax.set_xlabel(spec.get("x_label", spec["x"]))
+    axes[0][0].set_ylabel(spec.get("y_label", spec["y"]))
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in cmap.colors]
+    fig.legend(handles, [f"{spec['verdict']}: no", f"{spec['verdict']}: yes", "run failed"], loc="upper right",
+               ncol=3, fontsize=8)
+    fig.suptitle(spec.get("title", f"{sw.name}: {spec['verdict']} ({len(rows)} runs of {sw.target.kind} {sw.target.name})"),
+                 x=0.02, ha="left", fontsize=11)
+    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    out = sw.out / f"{sw.name}.png"
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def _edges(v: np.ndarray) -> np.ndarray:
+    """Cell edges around grid values (midpoints; the ends extended by half a cell)."""
+    if len(v) == 1:
+        return np.array([v[0] - 0.5, v[0] + 0.5]) if v[0] != 0 else np.array([-0.5, 0.5])
+    mid = (v[1:] + v[:-1]) / 2
+    return np.concatenate([[v[0] - (mid[0] - v[0])], mid, [v[-1] + (v[-1] - mid[-1])]])

@@ -1,0 +1,279 @@
+"""Sweeps on Dask (issue 12): bad sweep files fail before any run; a 200-run sweep on a LocalCluster; the same
+table with 1 and 2 workers; a worker killed mid-sweep loses nothing; --resume reruns nothing already done."""
+from __future__ import annotations
+
+import os
+import signal
+import textwrap
+
+import psutil
+import pytest
+
+from cedra.run import sweep as sw_mod
+from cedra.run.scenario import fmu
+from cedra.run.sweep import SweepError, execute, load, read_table
+
+BUILD = "build"
+
+
+@pytest.fixture(scope="module")
+def bump2d_fmu():
+    return fmu("bump2d", BUILD)
+
+
+def write(tmp_path, body, name="s.toml"):
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(body).replace("OUT", str(tmp_path / "out")))
+    return path
+
+
+def results(table, drop=("wall_s",)):
+    """The table's rows by id, without the columns that measure the machine rather than the model."""
+    return {r["id"]: {k: v for k, v in r.items() if k not in drop} for r in read_table(table)}
+
+
+# ------------------------------------------------------------------ bad files fail before any run
+
+BAD = [
+    ("[grid]\nterrain_hh = [0.1]\n", "grid.terrain_hh", "unknown parameter 'terrain_hh'"),
+    ("[grid]\nmu = []\n", "grid.mu", "empty list"),
+    ("[grid]\nmu = {from = 0.5, to = 0.5, num = 3}\n", "grid.mu", "empty range"),
+    ("[grid]\nmu = {from = 0.2, to = 1.0, num = 0}\n", "grid.mu.num", "expected an integer >= 1"),
+    ("[random]\nsamples = 3\nmu = [0.9, 0.2]\n", "random.mu", "empty range"),
+    ("outputs = ['climbed', 'peak_Fz']\n[grid]\nmu = [0.5]\n", "outputs[1]", "no output 'peak_Fz'"),
+    ("[grid]\nmu = [0.5, -1.0]\n", "grid.mu", "outside the range of mu"),
+    ("[grid]\nmu = [0.5]\n[map]\nx = 'terrain_h'\ny = 'mu'\nverdict = 'climbed'\n", "map.x", "not a [grid] parameter"),
+    ("stop_tim = 3\n[grid]\nmu = [0.5]\n", "stop_tim", "unknown key"),
+    ("[fixed]\nmu = 0.5\n[grid]\nmu = [0.5]\n", "grid.mu", "already set in [fixed]"),
+    ("", "grid", "nothing to vary"),
+    ("scenario = 'turn_flat'\n[grid]\nmu = [0.5]\n", "scene", "not both"),
+]
+
+
+@pytest.mark.parametrize("body,key,reason", BAD, ids=[b[1] + ":" + b[2][:20] for b in BAD])
+def test_bad_sweep_file_fails_before_any_run(tmp_path, body, key, reason):
+    path = write(tmp_path, "scene = 'bump2d'\nout = 'OUT'\n" + body)
+    with pytest.raises(SweepError) as e:
+        load(path)
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: {key}: "), msg
+    assert reason in msg, msg
+    assert not (tmp_path / "out").exists()
+
+
+def test_unknown_scene_and_cli_exit_code(tmp_path, capsys):
+    path = write(tmp_path, "scene = 'bump9d'\n[grid]\nmu = [0.5]\n")
+    from cedra.__main__ import main
+    assert main(["sweep", str(path), "--build", BUILD]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: scene: 'bump9d' is neither a shipped scene" in err
+
+
+def test_shipped_sweeps_load():
+    for name in ("climb", "climb_rigid"):
+        sw = load(sw_mod.resolve(name))
+        assert len(sw.runs()) >= 200
+        assert sw.fixed == {"tau_max": 4.0}
+        assert max(sw.grid["terrain_h"]) == pytest.approx(3 * 0.065)
+
+
+# ------------------------------------------------------------------ running on the local cluster
+
+SHORT = """
+scene = "bump2d"
+stop_time = 0.3
+out = "OUT"
+[grid]
+mu = {from = 0.2, to = 1.2, num = 10}
+terrain_h = {from = 0.0, to = 0.19, num = 20}
+"""
+
+
+def test_200_runs_on_local_cluster_and_resume_after_interrupt(tmp_path, bump2d_fmu):
+    sw = load(write(tmp_path, SHORT))
+    assert len(sw.runs()) == 200
+
+    class Interrupt(Exception):
+        pass
+
+    def stop_after_30(k, row):
+        if k == 30:
+            raise Interrupt
+    with pytest.raises(Interrupt):
+        execute(sw, BUILD, workers=2, quiet=True, on_result=stop_after_30)
+    first = results(sw.table)
+    assert len(first) == 30                      # every finished run was written before the interrupt
+    with pytest.raises(SweepError, match="pass --resume"):
+        execute(sw, BUILD, workers=2, quiet=True)
+    counts = execute(sw, BUILD, workers=2, quiet=True, resume=True)
+    assert counts == dict(total=200, skipped=30, ran=170, failed=0)
+    full = results(sw.table)
+    assert len(full) == 200 and len(read_table(sw.table)) == 200          # nothing ran twice
+    assert all(full[i] == row for i, row in first.items())                # nothing written was lost
+    assert all(r["status"] == "ok" for r in full.values())
+    assert execute(sw, BUILD, workers=2, quiet=True, resume=True) == dict(total=200, skipped=200, ran=0, failed=0)
+
+
+MIXED = """
+scene = "bump2d"
+stop_time = 2.0
+out = "OUT"
+[grid]
+terrain_h = [0.05, 0.15]
+[random]
+samples = 6
+seed = 7
+mu = [0.2, 1.2]
+ground_k = [5e4, 2e5]
+"""
+
+
+def test_one_and_two_workers_give_the_same_table(tmp_path, bump2d_fmu):
+    sw = load(write(tmp_path, MIXED))
+    assert len(sw.runs()) == 12
+    execute(sw, BUILD, workers=1, quiet=True)
+    one = results(sw.table)
+    execute(sw, BUILD, workers=2, quiet=True, overwrite=True)
+    two = results(sw.table)
+    assert one == two
+    assert len({r["mu"] for r in one.values()}) == 6                       # the draws differ from each other
+
+
+def _worker_pids():
+    """The LocalCluster's worker processes: this process's children started by multiprocessing's spawn (the
+    nannies run in this process; the resource tracker is not a worker)."""
+    return [p.pid for p in psutil.Process().children(recursive=True)
+            if "spawn_main" in " ".join(p.cmdline())]
+
+
+def test_killed_worker_loses_nothing(tmp_path, bump2d_fmu):
+    sw = load(write(tmp_path, MIXED.replace("stop_time = 2.0", "stop_time = 3.0")))
+    seen = {}
+
+    def kill_one(k, row):
+        if k == 3:
+            seen["before"] = results(sw.table)
+            pids = _worker_pids()
+            assert pids, "no worker process found"
+            os.kill(pids[0], signal.SIGKILL)
+            seen["killed"] = pids[0]
+    counts = execute(sw, BUILD, workers=2, quiet=True, on_result=kill_one)
+    assert "killed" in seen
+    after = results(sw.table)
+    assert counts["ran"] == 12 and len(after) == 12
+    assert all(after[i] == row for i, row in seen["before"].items())
+    assert all(r["status"] == "ok" for r in after.values()), [r["reason"] for r in after.values()]
+    # the killed worker's run was rescheduled: the table equals an undisturbed sweep's
+    execute(sw, BUILD, workers=2, quiet=True, overwrite=True)
+    assert results(sw.table) == after
+
+
+def _free_port():
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_external_scheduler_gives_the_local_table(tmp_path, bump2d_fmu):
+    """`--scheduler tcp://host:port`: the documented `dask scheduler` / `dask worker` commands, here on loopback."""
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+    dask = str(Path(sys.executable).parent / "dask")
+    port = _free_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        time.sleep(2)
+        procs.append(subprocess.Popen([dask, "worker", addr, "--nworkers", "2", "--nthreads", "1", "--no-dashboard"],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path))
+        from distributed import Client
+        with Client(addr, timeout=30) as c:
+            c.wait_for_workers(2, timeout=60)
+        sw = load(write(tmp_path, MIXED))
+        counts = execute(sw, BUILD, scheduler=addr, quiet=True)
+        assert counts["ran"] == 12 and counts["failed"] == 0
+        remote = results(sw.table)
+        execute(sw, BUILD, workers=1, quiet=True, overwrite=True)
+        assert results(sw.table) == remote
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+            p.wait(timeout=30)
+
+
+# ------------------------------------------------------------------ the climbing map against single runs
+
+R_W = 0.065
+# three points of the shipped map (examples/sweeps/climb.toml): one that climbs (next to the paper's case), one
+# that fails (a high bump with little friction: stuck), one at the edge (climbs, its next higher neighbour fails)
+MAP_POINTS = {"climbs": (7, 0.14625, 0.8), "fails": (9, 0.26, 0.2), "edge": (5, 0.26, 0.2)}
+
+
+def test_climbing_map_agrees_with_single_runs(tmp_path, bump2d_fmu):
+    import numpy as np
+    from cedra.run.simulate import run_bump
+    shipped = load(sw_mod.resolve("climb"))
+    heights = shipped.grid["terrain_h"]
+    sw = load(sw_mod.resolve("climb"))
+    sw.out = tmp_path / "out"
+    points = {k: dict(tau_max=4.0, terrain_h=heights[i], terrain_w=w, mu=mu) for k, (i, w, mu) in MAP_POINTS.items()}
+    sw.grid = {"terrain_h": sorted({p["terrain_h"] for p in points.values()} | {heights[6]}),
+               "terrain_w": [0.14625, 0.26], "mu": [0.2, 0.8]}
+    execute(sw, BUILD, workers=2, quiet=True)
+    table = {r["id"]: r for r in read_table(sw.table)}
+    map_ids = {shipped.run_id(p) for p in shipped.runs()}
+    edge_above = dict(points["edge"], terrain_h=heights[6])
+    verdicts = {}
+    for name, p in list(points.items()) + [("edge_above", edge_above)]:
+        assert sw.run_id(p) in map_ids                      # the same run as the shipped map's
+        verdicts[name] = table[sw.run_id(p)]["climbed"]
+    assert verdicts == {"climbs": "1", "fails": "0", "edge": "1", "edge_above": "0"}
+    # alone, through the main job's own loop (no early stop, the full 20 s): past the bump's end or not
+    for name, p in points.items():
+        names, rows, _, info = run_bump(bump2d_fmu, shipped.stop_time,
+                                        {k: v for k, v in p.items() if k != "tau_max"})
+        assert info["ok"], info["messages"][-2:]
+        goal = 1.0 + 2.5 * p["terrain_w"]
+        cx = rows[-1][[names.index(f"wheel[{i}].cx") for i in range(1, 7)]]
+        assert int(np.min(cx) > goal) == int(verdicts[name]), (name, cx, goal)
+
+
+# ------------------------------------------------------------------ a scenario script as the run
+
+def test_scenario_sweep(tmp_path):
+    path = write(tmp_path, """
+        scenario = "turn_flat"
+        stop_time = 12.0
+        out = "OUT"
+        [grid]
+        yaw_rate_cmd = [0.3, 0.5]
+        """)
+    sw = load(path)
+    assert sw.outputs == ["yaw_rate", "speed", "radius", "commanded_radius"]
+    counts = execute(sw, BUILD, workers=2, quiet=True)
+    assert counts == dict(total=2, skipped=0, ran=2, failed=0)
+    for r in read_table(sw.table):
+        assert r["status"] == "ok", r["reason"]
+        # each run got its own parameter: the turn holds that run's commanded yaw rate (within 5 % after 6 s)
+        cmd = float(r["yaw_rate_cmd"])
+        assert float(r["commanded_radius"]) == pytest.approx(0.2 / cmd, rel=1e-9)
+        assert abs(float(r["yaw_rate"]) - cmd) < 0.05 * cmd, r
+
+
+@pytest.mark.parametrize("body,key,reason", [
+    ("scenario = 'turn_flat'\n[grid]\nterrain_h = [0.1]\n", "grid.terrain_h",
+     "unknown parameter 'terrain_h' of scenario turn_flat"),
+    ("scenario = 'turn_flat'\n[grid]\nyaw_rate_cmd = [0.0]\n", "grid.yaw_rate_cmd", "outside the range"),
+    ("scenario = 'turn_flat'\noutputs = ['Fn']\n[grid]\nmu = [0.5]\n", "outputs[0]", "no output 'Fn'"),
+    ("scenario = 'drop'\n[grid]\nmu = [0.5]\n", "scenario", "does not declare PARAMETERS"),
+    ("scenario = 'nope'\n[grid]\nmu = [0.5]\n", "scenario", "unknown scenario 'nope'"),
+])
+def test_bad_scenario_sweep(tmp_path, body, key, reason):
+    path = write(tmp_path, body)
+    with pytest.raises(SweepError) as e:
+        load(path)
+    assert str(e.value).startswith(f"{path}: {key}: ") and reason in str(e.value), str(e.value)
