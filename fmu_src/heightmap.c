@@ -253,55 +253,69 @@ static int locate(const heightmap *hm, double X, double Y, const double **c, dou
     return 0;
 }
 
-/* the four basis values at t (basis(t)[0]) */
-static void basis0(double t, double b[4]) {
+/* The basis rows scaled to whole coefficients (6 b, 2 b', b'' of basis()): the scale is applied once to the
+ * sums instead of to every basis value. */
+static void rows0(double t, double b0[4]) {
     double s = 1.0 - t, t2 = t * t, t3 = t2 * t;
-    b[0] = s * s * s / 6.0;
-    b[1] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0;
-    b[2] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0;
-    b[3] = t3 / 6.0;
+    b0[0] = s * s * s;
+    b0[1] = 3.0 * t3 - 6.0 * t2 + 4.0;
+    b0[2] = -3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0;
+    b0[3] = t3;
+}
+
+static void rows2(double t, double b0[4], double b1[4], double b2[4]) {
+    double s = 1.0 - t, t2 = t * t;
+    rows0(t, b0);
+    b1[0] = -s * s;
+    b1[1] = 3.0 * t2 - 4.0 * t;
+    b1[2] = -3.0 * t2 + 2.0 * t + 1.0;
+    b1[3] = t2;
+    b2[0] = s;
+    b2[1] = 3.0 * t - 2.0;
+    b2[2] = 1.0 - 3.0 * t;
+    b2[3] = t;
 }
 
 static int eval_h(const heightmap *hm, double X, double Y, double *h) {
     const double *c;
     double t, s, bu[4], bv[4];
     if (locate(hm, X, Y, &c, &t, &s)) return 1;
-    basis0(t, bu);
-    basis0(s, bv);
+    rows0(t, bu);
+    rows0(s, bv);
     int mx = hm->nx + 2;
     double sum = 0.0;
     for (int l = 0; l < 4; l++, c += mx) sum += (bu[0] * c[0] + bu[1] * c[1] + bu[2] * c[2] + bu[3] * c[3]) * bv[l];
-    *h = sum;
+    *h = sum / 36.0;
     return 0;
 }
 
 /* height, gradient and Hessian [h_XX, h_XY, h_YY] */
 static int eval_h2(const heightmap *hm, double X, double Y, double *h, double g[2], double H[3]) {
     const double *c;
-    double t, s, bu[4][4], bv[4][4];
+    double t, s, u0[4], u1[4], u2[4], v0[4], v1[4], v2[4];
     if (locate(hm, X, Y, &c, &t, &s)) return 1;
-    basis(t, bu);
-    basis(s, bv);
+    rows2(t, u0, u1, u2);
+    rows2(s, v0, v1, v2);
     int mx = hm->nx + 2;
-    double r0 = 0, r1 = 0, r2 = 0, h0 = 0, hx = 0, hy = 0, hxx = 0, hxy = 0, hyy = 0;
+    double h0 = 0, hx = 0, hy = 0, hxx = 0, hxy = 0, hyy = 0;
     for (int l = 0; l < 4; l++, c += mx) {
-        r0 = bu[0][0] * c[0] + bu[0][1] * c[1] + bu[0][2] * c[2] + bu[0][3] * c[3];
-        r1 = bu[1][0] * c[0] + bu[1][1] * c[1] + bu[1][2] * c[2] + bu[1][3] * c[3];
-        r2 = bu[2][0] * c[0] + bu[2][1] * c[1] + bu[2][2] * c[2] + bu[2][3] * c[3];
-        h0 += r0 * bv[0][l];
-        hy += r0 * bv[1][l];
-        hyy += r0 * bv[2][l];
-        hx += r1 * bv[0][l];
-        hxy += r1 * bv[1][l];
-        hxx += r2 * bv[0][l];
+        double r0 = u0[0] * c[0] + u0[1] * c[1] + u0[2] * c[2] + u0[3] * c[3];
+        double r1 = u1[0] * c[0] + u1[1] * c[1] + u1[2] * c[2] + u1[3] * c[3];
+        double r2 = u2[0] * c[0] + u2[1] * c[1] + u2[2] * c[2] + u2[3] * c[3];
+        h0 += r0 * v0[l];
+        hy += r0 * v1[l];
+        hyy += r0 * v2[l];
+        hx += r1 * v0[l];
+        hxy += r1 * v1[l];
+        hxx += r2 * v0[l];
     }
     double ix = 1.0 / hm->dx, iy = 1.0 / hm->dy;
-    *h = h0;
-    g[0] = hx * ix;
-    g[1] = hy * iy;
-    H[0] = hxx * ix * ix;
-    H[1] = hxy * ix * iy;
-    H[2] = hyy * iy * iy;
+    *h = h0 / 36.0;
+    g[0] = hx * ix / 12.0;
+    g[1] = hy * iy / 12.0;
+    H[0] = hxx * ix * ix / 6.0;
+    H[1] = hxy * ix * iy / 4.0;
+    H[2] = hyy * iy * iy / 6.0;
     return 0;
 }
 
