@@ -525,12 +525,17 @@ static const casadi_int *const OUT1[] = {SP_1X2, SP_2X2, SP_4X2};
  * functions that hold no derivative, cedra_f above all). */
 static const casadi_int *const IN2[] = {SP_7};
 static const casadi_int *const OUT2[] = {SP_6, SP_6X7};
+/* jac_cedra_rim_point: (x, e) -> (de/dx [6x7]): cedra_rim_point differentiable once (CasADi's AD of a function
+ * that calls it, e.g. the Python side's MX Jacobian of cedra_f in cedra.reports.common) */
+static const casadi_int *const IN3[] = {SP_7, SP_6};
+static const casadi_int *const OUT3[] = {SP_6X7};
 
 /* the metadata CasADi reads when it loads the functions from a shared library (Python side, cedra.mechanics.heightmap) */
 EXTERNAL_SHAPE(cedra_heightmap, 1, 3, IN0, OUT0)
 EXTERNAL_SHAPE(jac_cedra_heightmap, 4, 3, IN1, OUT1)
 EXTERNAL_SHAPE(cedra_rim_contact, 1, 2, IN2, OUT2)
 EXTERNAL_SHAPE(cedra_rim_point, 1, 1, IN2, OUT2)
+EXTERNAL_SHAPE(jac_cedra_rim_point, 2, 1, IN3, OUT3)
 
 static const double ORIGIN[2] = {0.0, 0.0};     /* CasADi passes NULL for an all-zero argument */
 
@@ -563,6 +568,11 @@ int cedra_rim_contact(const double **arg, double **res, casadi_int *iw, double *
 int cedra_rim_point(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
     (void)iw, (void)w, (void)mem;
     return rim_active(arg[0], res[0], NULL);
+}
+
+int jac_cedra_rim_point(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
+    (void)iw, (void)w, (void)mem;
+    return rim_active(arg[0], NULL, res[0]);
 }
 
 #ifdef CEDRA_HEIGHTMAP_HOST

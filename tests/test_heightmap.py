@@ -166,7 +166,9 @@ def test_model_on_a_heightmap_plane_equals_the_analytic_slope(tmp_path):
 # ---------------------------------------------------------------- the wheel's contact point in C (issue 13 item 5)
 def hills_states(model, n, seed):
     """n random states of the hills3d model with the rover on the hills (X 0.8..3.2 m), its wheels pressed a few
-    mm into the ground (cedra_guess), joints and speeds perturbed."""
+    mm into the ground (cedra_guess), joints and speeds perturbed. Makes the shipped grid the active map (another
+    test may have loaded its own; off the active grid the Python-side functions would quietly give 0)."""
+    heightmap.load(scene.load_shipped("hills3d").options.heightmap)
     fns = model.functions()
     names = model.q_names
     par = model.default_par()
@@ -179,7 +181,9 @@ def hills_states(model, n, seed):
         q[names.index("x")] = rng.uniform(0.8, 3.2)
         q[names.index("y")] = rng.uniform(-0.4, 0.4)
         q = np.array(fns["cedra_guess"](q, inp, par)).ravel() + rng.normal(scale=0.005, size=q0.size)
-        out.append((q, rng.normal(scale=0.2, size=q0.size), rng.normal(size=q0.size)))
+        u = rng.normal(scale=0.2, size=q0.size)
+        assert np.max(np.abs(np.array(fns["cedra_f"](q, u, inp, par)[0]))) > 10      # in contact, on the grid
+        out.append((q, u, rng.normal(size=q0.size)))
     return fns, par, inp, out
 
 
@@ -321,3 +325,19 @@ def test_c_rim_search_on_rough_ground_equals_the_symbolic_search(tmp_path):
             n_compared += 1
     assert n_off_bottom > 100           # the rough ground did move the contact away from the rim's bottom
     assert n_compared >= 195
+
+
+def test_cedra_f_is_differentiable_once_through_the_rim_point(hills_models):
+    """CasADi's own derivative of cedra_f (what the Python side's reference integrators take: its MX Jacobian goes
+    through jac_cedra_rim_point) equals cedra_rjac's: at a = 0, dr/dq = -df/dq and dr/du = -df/du."""
+    m = hills_models[0]
+    fns, par, inp, states = hills_states(m, 2, seed=8)
+    q, u = ca.MX.sym("q", m.q.numel()), ca.MX.sym("u", m.q.numel())
+    f = fns["cedra_f"](q, u, inp, par)[0]
+    jf = ca.Function("jf", [q, u], [ca.jacobian(f, q), ca.jacobian(f, u)])
+    zero = np.zeros(m.q.numel())
+    for qv, uv, _ in states:
+        dq, du = (np.array(v) for v in fns["cedra_rjac"](qv, uv, zero, inp, par)[:2])
+        fq, fu = (np.array(v) for v in jf(qv, uv))
+        assert np.max(np.abs(fq + dq)) <= 1e-10 * np.max(np.abs(dq))
+        assert np.max(np.abs(fu + du)) <= 1e-10 * np.max(np.abs(du))
