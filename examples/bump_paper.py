@@ -13,8 +13,8 @@ from pathlib import Path
 STOP_TIME = 15.0
 
 
-def run(out_dir="out/bump_paper", build_dir="build", stop_time=None, quiet=False) -> dict:
-    from cedra.run.scenario import fmu
+def run(out_dir="out/bump_paper", build_dir="build", stop_time=None, quiet=False, watch=True) -> dict:
+    from cedra.run.scenario import fmu, watch_run
     from cedra.run.simulate import bump_terrain, run_bump, write_outputs
     stop_time = stop_time or STOP_TIME
     path = fmu("bump2d", build_dir)
@@ -23,6 +23,7 @@ def run(out_dir="out/bump_paper", build_dir="build", stop_time=None, quiet=False
         raise RuntimeError("bump_paper stopped early: " + "; ".join(info["messages"][-2:]))
     col = {n: rows[:, k] for k, n in enumerate(names)}
     write_outputs(Path(out_dir), names, rows, torques, bump_terrain(path)[0])
+    watch_run(out_dir, names, rows, path, "bump_paper: the paper's run", watch)
     summary = dict(x_end=float(col["body.x"][-1]), peak_Fn=float(max(col[f"wheel[{i}].Fn"].max() for i in (1, 2, 5, 6))),
                    peak_tau=float(abs(torques).max()), wall=info["wall"])
     if not quiet:

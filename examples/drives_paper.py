@@ -109,7 +109,8 @@ def plot(path, runs, noload_speed):
     plt.close(fig)
 
 
-def run(out_dir="out/drives_paper", build_dir="build", stop_time=None, quiet=False) -> dict[str, dict[str, float]]:
+def run(out_dir="out/drives_paper", build_dir="build", stop_time=None, quiet=False,
+        watch=True) -> dict[str, dict[str, float]]:
     """Both runs: CSVs and the figure into out_dir, the summary printed (unless quiet) and returned (scene ->
     figures)."""
     from cedra.rover.parameters import DEFAULTS
@@ -118,6 +119,11 @@ def run(out_dir="out/drives_paper", build_dir="build", stop_time=None, quiet=Fal
     runs = {scene: run_scene(scene, build_dir, stop_time) for scene in SCENES}
     for scene, c in runs.items():
         write_csv(out / f"{scene}.csv", c)
+        if watch:           # <scene>_animation.gif, <scene>_view.html
+            from cedra.run.watch import watch as watch_run
+            names = [n for n in c if n != "tau_cmd"]
+            watch_run(out, names, np.array([c[n] for n in names]).T, Path(build_dir) / f"{scene}.fmu",
+                      title=f"drives_paper: {scene}", stem=f"{scene}_")
     plot(out / "spin_and_load.png", runs, DEFAULTS["drive_noload_speed"])
     figures = {scene: summary(c, DEFAULTS["drive_viscous"]) for scene, c in runs.items()}
     if not quiet:

@@ -17,14 +17,16 @@ STOP_TIME = 2.0
 STEP = 0.005
 
 
-def run(out_dir="out/drop", build_dir="build", stop_time=None, quiet=False) -> dict:
+def run(out_dir="out/drop", build_dir="build", stop_time=None, quiet=False, watch=True) -> dict:
     from cedra.run.driver import RoverFMU
     from cedra.rover.parameters import DEFAULTS
     from cedra.run.progress import Progress
-    from cedra.run.scenario import fmu, write_csv
+    from cedra.run.scenario import fmu, watch_run, write_csv
+    from cedra.run.watch import WATCHED
     stop_time = stop_time or STOP_TIME
     plant = RoverFMU(fmu("flat3d", build_dir))
     names = ["body.z", "body.vz", "energy.kinetic", "energy.potential"] + [f"wheel[{i}].Fn" for i in range(1, 7)]
+    names += [n for n in WATCHED if n not in names and plant.has(n)]
     z0 = DEFAULTS["R_w"] - DEFAULTS["rear_z"] + DROP_HEIGHT       # body.z of the design pose, raised
     progress = Progress(stop_time, "drop", quiet=quiet)
     rows, ok = [], True
@@ -45,6 +47,7 @@ def run(out_dir="out/drop", build_dir="build", stop_time=None, quiet=False) -> d
     rows = np.array(rows)
     out = Path(out_dir)
     write_csv(out / "drop.csv", ["time"] + names, rows)
+    watch_run(out, ["time"] + names, rows, fmu("flat3d", build_dir), f"drop: from {DROP_HEIGHT} m", watch)
     col = {n: rows[:, k + 1] for k, n in enumerate(names)}
     energy = col["energy.kinetic"] + col["energy.potential"]
     fn = np.array([col[f"wheel[{i}].Fn"] for i in range(1, 7)])

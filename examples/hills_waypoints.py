@@ -70,9 +70,10 @@ class PurePursuit:
 
 
 def run(out_dir="out/hills_waypoints", build_dir="build", stop_time=None, quiet=False, waypoints=None,
-        speed=None) -> dict:
+        speed=None, watch=True) -> dict:
     from cedra.run.cosim import DriveLoop
-    from cedra.run.scenario import fmu, run_loop, write_csv
+    from cedra.run.scenario import fmu, run_loop, watch_run, write_csv
+    from cedra.run.watch import plus_watched
     global SPEED
     waypoints = WAYPOINTS if waypoints is None else waypoints
     SPEED = SPEED if speed is None else speed
@@ -80,9 +81,10 @@ def run(out_dir="out/hills_waypoints", build_dir="build", stop_time=None, quiet=
     stop_time = stop_time or STOP_TIME
     loop = DriveLoop(fmu("hills3d", build_dir), fmu("drive3d", build_dir))
     pursuit = PurePursuit(loop, waypoints)
-    r = run_loop(loop, "hills_waypoints", stop_time, STEP, pursuit, RECORD, quiet)
+    r = run_loop(loop, "hills_waypoints", stop_time, STEP, pursuit, plus_watched(RECORD), quiet)
     out = Path(out_dir)
     write_csv(out / "hills_waypoints.csv", r.names, r.rows)
+    watch_run(out, r.names, r.rows, fmu("hills3d", build_dir), "hills_waypoints: pure pursuit over the hills", watch)
     summary = dict(reached=pursuit.k, closest=[float(c) for c in pursuit.closest], wall=r.wall,
                    x_end=float(r.column("body.x")[-1]))
     _plot(out, r, waypoints)

@@ -40,9 +40,10 @@ class LineHolder:
                 K_HEADING * heading_error}
 
 
-def run(out_dir="out/slope_traverse", build_dir="build", stop_time=None, quiet=False) -> dict:
+def run(out_dir="out/slope_traverse", build_dir="build", stop_time=None, quiet=False, watch=True) -> dict:
     from cedra.run.cosim import DriveLoop
-    from cedra.run.scenario import fmu, run_loop, write_csv
+    from cedra.run.scenario import fmu, run_loop, watch_run, write_csv
+    from cedra.run.watch import plus_watched
     stop_time = stop_time or STOP_TIME
     out = Path(out_dir)
     start = {"start.yaw": HEADING}
@@ -51,8 +52,11 @@ def run(out_dir="out/slope_traverse", build_dir="build", stop_time=None, quiet=F
         loop = DriveLoop(fmu("slope3d", build_dir), fmu("drive3d", build_dir), plant_values=start,
                          controller_values={"ctrl.mode": mode})
         commands = LineHolder(loop, 0.0) if mode == 1 else (lambda t: {"cmd.v": SPEED, "cmd.yaw_rate": 0.0})
-        r = run_loop(loop, f"slope_traverse ({label})", stop_time, STEP, commands, RECORD, quiet)
+        r = run_loop(loop, f"slope_traverse ({label})", stop_time, STEP, commands, plus_watched(RECORD), quiet)
         write_csv(out / f"{label.replace(' ', '_')}.csv", r.names, r.rows)
+        # view.html: the line-holding controller; equal_torques_view.html: the other run
+        watch_run(out, r.names, r.rows, fmu("slope3d", build_dir), f"slope_traverse ({label})", watch,
+                  stem="" if mode == 1 else "equal_torques_")
         runs[label] = r
         y = r.column("body.y")
         within = np.abs(y - y[0]) <= TRAVEL

@@ -22,16 +22,21 @@ RECORD = (["body.x"] + [f"wheel[{i}].{q}" for i in WHEELS for q in ("slip", "Fn"
           [f"tau[{i}]" for i in WHEELS])
 
 
-def run(out_dir="out/step_climb", build_dir="build", stop_time=None, quiet=False) -> dict:
+def run(out_dir="out/step_climb", build_dir="build", stop_time=None, quiet=False, watch=True) -> dict:
     from cedra.run.cosim import DriveLoop
-    from cedra.run.scenario import fmu, run_loop, write_csv
+    from cedra.run.scenario import fmu, run_loop, watch_run, write_csv
+    from cedra.run.watch import plus_watched
     stop_time = stop_time or STOP_TIME
     out = Path(out_dir)
     runs, summary = {}, {}
     for label, mode in MODES.items():
         loop = DriveLoop(fmu("bump2d", build_dir), fmu("drive2d", build_dir), controller_values={"ctrl.mode": mode})
-        r = run_loop(loop, f"step_climb ({label})", stop_time, STEP, lambda t: {"cmd.v": SPEED}, RECORD, quiet)
+        r = run_loop(loop, f"step_climb ({label})", stop_time, STEP, lambda t: {"cmd.v": SPEED}, plus_watched(RECORD),
+                     quiet)
         write_csv(out / f"{label.replace(' ', '_')}.csv", r.names, r.rows)
+        # <label>_animation.gif, <label>_view.html
+        watch_run(out, r.names, r.rows, fmu("bump2d", build_dir), f"step_climb ({label})", watch,
+                  stem=label.replace(" ", "_") + "_")
         runs[label] = r
         fn = np.array([r.column(f"wheel[{i}].Fn") for i in WHEELS])
         fx = np.array([r.column(f"wheel[{i}].Fx") for i in WHEELS])

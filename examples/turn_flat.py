@@ -29,17 +29,22 @@ RECORD = (["body.x", "body.y", "body.yaw", "body.vx", "body.vy", "body.wz", "ste
           [f"tau[{i}]" for i in range(1, 7)])
 
 
-def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False, params=None) -> dict:
-    """params: values of PARAMETERS (a sweep's run); the others keep their defaults."""
+def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False, params=None, watch=None) -> dict:
+    """params: values of PARAMETERS (a sweep's run); the others keep their defaults. watch: view.html (default: yes,
+    except for a sweep's run, i.e. with params)."""
     from cedra.run.cosim import DriveLoop
-    from cedra.run.scenario import fmu, parameters, run_loop, write_csv
+    from cedra.run.scenario import fmu, parameters, run_loop, watch_run, write_csv
+    from cedra.run.watch import plus_watched
     stop_time = stop_time or STOP_TIME
+    watch = params is None if watch is None else watch
     p = parameters(PARAMETERS, params)
     loop = DriveLoop(*(fmu(n, build_dir) for n in FMUS), plant_values={"mu": p["mu"]})
     r = run_loop(loop, "turn_flat", stop_time, STEP, lambda t: {"cmd.v": p["speed_cmd"], "cmd.yaw_rate": p["yaw_rate_cmd"]},
-                 RECORD, quiet)
+                 plus_watched(RECORD) if watch else RECORD, quiet)
     out = Path(out_dir)
     write_csv(out / "turn_flat.csv", r.names, r.rows)
+    watch_run(out, r.names, r.rows, fmu("flat3d", build_dir),
+              f"turn_flat: {p['speed_cmd']:g} m/s, {p['yaw_rate_cmd']:g} rad/s", watch)
     t = r.column("time")
     late = t >= min(8.0, 0.5 * stop_time)
     speed = np.hypot(r.column("body.vx"), r.column("body.vy"))

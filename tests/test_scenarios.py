@@ -9,17 +9,20 @@ from pathlib import Path
 
 import pytest
 
-from cedra.run import scenario
+from cedra.run import scenario, watch
 
 REPO = Path(__file__).resolve().parents[1]
 BUILD = REPO / "build"
-SHORT = {   # scenario -> (stop time, files it must write)
-    "bump_paper": (2.0, ["bump2d.csv", "forces.png", "path.png"]),
-    "turn_flat": (3.0, ["turn_flat.csv", "path.png", "tracking.png"]),
-    "slope_traverse": (3.0, ["controller.csv", "equal_torques.csv", "drift.png"]),
-    "hills_waypoints": (3.0, ["hills_waypoints.csv", "path.png"]),
-    "step_climb": (3.0, ["equal_torques.csv", "inverse_kinematics.csv", "compare.png"]),
-    "drop": (1.0, ["drop.csv", "drop.png"]),
+VIDEO = f"animation.{watch.video_format()}"
+SHORT = {   # scenario -> (stop time, files it must write; the 3D ones a view.html, the 2D ones an animation too)
+    "bump_paper": (2.0, ["bump2d.csv", "forces.png", "path.png", VIDEO, "view.html"]),
+    "turn_flat": (3.0, ["turn_flat.csv", "path.png", "tracking.png", "view.html"]),
+    "slope_traverse": (3.0, ["controller.csv", "equal_torques.csv", "drift.png", "view.html",
+                             "equal_torques_view.html"]),
+    "hills_waypoints": (3.0, ["hills_waypoints.csv", "path.png", "view.html"]),
+    "step_climb": (3.0, ["equal_torques.csv", "inverse_kinematics.csv", "compare.png", f"equal_torques_{VIDEO}",
+                         f"inverse_kinematics_{VIDEO}", "equal_torques_view.html", "inverse_kinematics_view.html"]),
+    "drop": (1.0, ["drop.csv", "drop.png", "view.html"]),
 }
 
 
@@ -41,6 +44,11 @@ def test_scenario_runs_and_writes_its_outputs(name, tmp_path):
     assert summary
     for f in files:
         assert (tmp_path / f).stat().st_size > 0, f
+
+
+def test_scenario_without_watch_writes_no_animation_or_page(tmp_path):
+    scenario.load("drop").run(out_dir=str(tmp_path), build_dir=str(BUILD), stop_time=0.2, quiet=True, watch=False)
+    assert {p.name for p in tmp_path.iterdir()} == {"drop.csv", "drop.png"}
 
 
 def test_unknown_scenario_fails_before_anything_runs(tmp_path):

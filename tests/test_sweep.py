@@ -277,3 +277,37 @@ def test_bad_scenario_sweep(tmp_path, body, key, reason):
     with pytest.raises(SweepError) as e:
         load(path)
     assert str(e.value).startswith(f"{path}: {key}: ") and reason in str(e.value), str(e.value)
+
+
+# ------------------------------------------------------------------ failed runs are recorded, the sweep goes on
+
+def test_failed_and_timed_out_runs_are_recorded(tmp_path, bump2d_fmu):
+    path = write(tmp_path, """
+        scene = "bump2d"
+        stop_time = 1.0
+        out = "OUT"
+        [grid]
+        "solver.h_max" = [1e-8, 0.01]
+        mu = [0.5, 0.8]
+        """)
+    counts = execute(load(path), BUILD, workers=2, quiet=True)
+    assert counts == dict(total=4, skipped=0, ran=4, failed=2)
+    for r in read_table(load(path).table):
+        if float(r["solver.h_max"]) == 0.01:
+            assert r["status"] == "ok" and float(r["t_end"]) == 1.0, r
+        else:              # 0.01 s in steps of 1e-8 s is more than solver.max_steps: refused before any work
+            assert r["status"] in ("error", "discard") and "max_steps" in r["reason"], r
+            assert float(r["t_end"]) == 0.0
+    slow = write(tmp_path, """
+        scene = "bump2d"
+        stop_time = 15.0
+        run_timeout = 0.2
+        out = "OUT2"
+        [grid]
+        mu = [0.5, 0.8]
+        """.replace("OUT2", str(tmp_path / "out2")), name="slow.toml")
+    counts = execute(load(slow), BUILD, workers=2, quiet=True)
+    assert counts["ran"] == 2 and counts["failed"] == 2
+    for r in read_table(load(slow).table):
+        assert r["status"] == "timeout" and "more than 0.2 s of wall time" in r["reason"], r
+        assert 0 < float(r["t_end"]) < 15.0

@@ -41,11 +41,12 @@ def cmd_simulate(args):
             print(f"{name:18s} {line}")
         return 0
     if args.scene == scenario.MAIN_JOB:
-        return simulate.main(Path(args.build) / "bump2d.fmu", Path(args.out) / "bump2d", args.stop_time or 15.0)
+        return simulate.main(Path(args.build) / "bump2d.fmu", Path(args.out) / "bump2d", args.stop_time or 15.0,
+                             video=not args.no_video)
     try:
         mod = scenario.load(args.scene)
         mod.run(out_dir=str(Path(args.out) / args.scene), build_dir=args.build, stop_time=args.stop_time,
-                quiet=args.quiet)
+                quiet=args.quiet, watch=not args.no_video)
     except scenario.ScenarioError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -65,9 +66,16 @@ def cmd_bench(args):
 def cmd_report(args):
     if args.which == "precision":
         from cedra.reports import precision as r
+    elif args.which == "defaults":
+        from cedra.reports import defaults as r
     else:
         from cedra.reports import stability as r
     return r.main(args)
+
+
+def cmd_watch(args):
+    from cedra.run import watch
+    return watch.main(args)
 
 
 def cmd_sweep(args):
@@ -94,6 +102,8 @@ def main(argv=None):
     s.add_argument("--out", default="out")
     s.add_argument("--stop-time", type=float, default=None, help="s (default: the scenario's own)")
     s.add_argument("--quiet", action="store_true", help="no progress, no summary")
+    s.add_argument("--no-video", action="store_true",
+                   help="no animation.gif / view.html (cedra.run.watch), only the CSV and plots")
     c = sub.add_parser("compare", help="compliant vs rigid contact on the bump (same torques)")
     c.add_argument("--build", default="build")
     c.add_argument("--out", default="out/compare")
@@ -106,18 +116,21 @@ def main(argv=None):
     be.add_argument("--side-by-side", action="store_true",
                     help="only the MuJoCo side-by-side table (the paper's 15 s run)")
     r = sub.add_parser("report", help="work-precision or stability report")
-    r.add_argument("which", choices=["precision", "stability"])
+    r.add_argument("which", choices=["precision", "stability", "defaults"])
     r.add_argument("--build", default="build")
     r.add_argument("--out", default="out/report")
     r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")
     r.add_argument("--quiet", action="store_true", help="no per-run lines, no progress (the report and summary only)")
+    r.add_argument("--scene", action="append", help="defaults: only this scene (repeatable)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
+    from cedra.run.watch import add_parser as add_watch_parser
     add_fuzz_parser(sub)
     add_sweep_parser(sub)
+    add_watch_parser(sub)
     args = ap.parse_args(argv)
     commands = {"build": cmd_build, "simulate": cmd_simulate, "compare": cmd_compare, "bench": cmd_bench,
-                "report": cmd_report, "fuzz": cmd_fuzz, "sweep": cmd_sweep}
+                "report": cmd_report, "fuzz": cmd_fuzz, "sweep": cmd_sweep, "watch": cmd_watch}
     return commands[args.cmd](args)
 
 

@@ -2,7 +2,9 @@
 a couple of seconds, CSV output, and the registry behind `python -m cedra simulate <scenario>` / `--list`.
 
 A scenario script is a short module in examples/ with a docstring (its first line is the --list entry) and
-    run(out_dir="out/<name>", build_dir="build", stop_time=None, quiet=False) -> dict   (the summary)
+    run(out_dir="out/<name>", build_dir="build", stop_time=None, quiet=False, watch=True) -> dict   (the summary)
+(watch: also the run's view.html, and animation.gif for 2D runs: `watch_run` below; `--no-video` turns it off; a
+script that a sweep runs with `params=` leaves it off for those runs, as turn_flat does.)
 Copy one, edit its numbers, run it: `python examples/<name>.py` or `python -m cedra simulate <name>`.
 """
 from __future__ import annotations
@@ -76,6 +78,15 @@ def write_csv(path, names, rows) -> Path:
         for r in rows:
             w.writerow([f"{v:.10g}" for v in r])
     return path
+
+
+def watch_run(out_dir, names, rows, fmu_path, title: str, enabled: bool = True, stem: str = "") -> dict:
+    """A run's animation (2D runs) and view.html (cedra.run.watch; the run must have recorded
+    cedra.run.watch.WATCHED), unless disabled; returns what watch() returns ({} when disabled)."""
+    if not enabled:
+        return {}
+    from cedra.run.watch import watch
+    return watch(out_dir, names, rows, fmu_path, title=title, stem=stem)
 
 
 def scenarios() -> dict[str, str]:

@@ -161,12 +161,14 @@ def _scene(path: Path, name: str):
 
 
 def settable(scene) -> dict[str, tuple]:
-    """name -> (min, max) of everything a run may set: the scene FMU's parameters and inputs (not the solver's
-    settings, not the torques the controller drives), and the controller's settings."""
+    """name -> (min, max) of everything a run may set: the scene FMU's Real parameters and inputs (solver.tol and
+    solver.h_max too; not the torques the controller drives, not solver.max_wall_time: see run_one), and the
+    controller's settings."""
     from cedra.fmu.variables import variables
     out = {}
     for v in variables(scene.spec()):
-        if v.causality in ("parameter", "input") and v.type == "Real" and not v.name.startswith(("tau[", "solver.")):
+        if v.causality in ("parameter", "input") and v.type == "Real" and not v.name.startswith("tau[") \
+                and v.name != "solver.max_wall_time":
             out[v.name] = (v.min, v.max)
     out.update({"tau_max": (0.0, None), "v_ref": (None, None)})
     return out
@@ -335,6 +337,9 @@ def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout
     ctrl = SpeedController(v_ref=params.get("v_ref", CONTROLLER["v_ref"]),
                            tau_max=params.get("tau_max", CONTROLLER["tau_max"]))
     values = {k: v for k, v in params.items() if k not in ctrl_keys}
+    # A verdict must not depend on how loaded the machine is: the FMU's per-step wall-clock budget (1 s by default)
+    # gives way to the run's own timeout; the step-count budget (solver.max_steps) still bounds every step.
+    values["solver.max_wall_time"] = timeout
     start = {n: float(fmu.vars[n].start) for n in ("terrain_x0", "terrain_w", "terrain_s") if fmu.has(n)}
     goal = obstacle_end(kind, {**start, **values})
     wheels = [i for i in range(1, 7)]
@@ -399,7 +404,7 @@ def run_scenario(name: str, build_dir: str, params: dict, stop_time: float, outp
     try:
         with tempfile.TemporaryDirectory(prefix=f"cedra-sweep-{name}-") as tmp:
             summary = load_scenario(name).run(out_dir=tmp, build_dir=build_dir, stop_time=stop_time, quiet=True,
-                                              params=params)
+                                              params=params, watch=False)
         missing = [o for o in outputs if o not in summary]
         if missing:
             raise KeyError(f"run() returned no {', '.join(missing)}")
