@@ -237,6 +237,236 @@ int heightmap_eval(const heightmap *hm, double X, double Y, double *h, double *d
     return 0;
 }
 
+/* The rim search's evaluations (~20 points per wheel and model evaluation): the same spline, unrolled for what
+ * the search needs (the height alone at the 13 samples; height, gradient and Hessian at the Newton points).
+ * The cell and its local coordinates: 0, or 1 outside the grid (as heightmap_eval). */
+static int locate(const heightmap *hm, double X, double Y, const double **c, double *t, double *s) {
+    double u = (X - hm->x0) / hm->dx, v = (Y - hm->y0) / hm->dy;
+    const double slack = 1e-9;
+    if (!(u >= -slack && u <= hm->nx - 1 + slack && v >= -slack && v <= hm->ny - 1 + slack)) return 1;
+    int i = u > 0.0 ? (int)u : 0, j = v > 0.0 ? (int)v : 0;   /* truncation = floor here */
+    if (i > hm->nx - 2) i = hm->nx - 2;
+    if (j > hm->ny - 2) j = hm->ny - 2;
+    *c = hm->coef + (size_t)j * (hm->nx + 2) + i;
+    *t = u - i;
+    *s = v - j;
+    return 0;
+}
+
+/* The basis rows scaled to whole coefficients (6 b, 2 b', b'' of basis()): the scale is applied once to the
+ * sums instead of to every basis value. */
+static void rows0(double t, double b0[4]) {
+    double s = 1.0 - t, t2 = t * t, t3 = t2 * t;
+    b0[0] = s * s * s;
+    b0[1] = 3.0 * t3 - 6.0 * t2 + 4.0;
+    b0[2] = -3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0;
+    b0[3] = t3;
+}
+
+static void rows2(double t, double b0[4], double b1[4], double b2[4]) {
+    double s = 1.0 - t, t2 = t * t;
+    rows0(t, b0);
+    b1[0] = -s * s;
+    b1[1] = 3.0 * t2 - 4.0 * t;
+    b1[2] = -3.0 * t2 + 2.0 * t + 1.0;
+    b1[3] = t2;
+    b2[0] = s;
+    b2[1] = 3.0 * t - 2.0;
+    b2[2] = 1.0 - 3.0 * t;
+    b2[3] = t;
+}
+
+static int eval_h(const heightmap *hm, double X, double Y, double *h) {
+    const double *c;
+    double t, s, bu[4], bv[4];
+    if (locate(hm, X, Y, &c, &t, &s)) return 1;
+    rows0(t, bu);
+    rows0(s, bv);
+    int mx = hm->nx + 2;
+    double sum = 0.0;
+    for (int l = 0; l < 4; l++, c += mx) sum += (bu[0] * c[0] + bu[1] * c[1] + bu[2] * c[2] + bu[3] * c[3]) * bv[l];
+    *h = sum / 36.0;
+    return 0;
+}
+
+/* height, gradient and Hessian [h_XX, h_XY, h_YY] */
+static int eval_h2(const heightmap *hm, double X, double Y, double *h, double g[2], double H[3]) {
+    const double *c;
+    double t, s, u0[4], u1[4], u2[4], v0[4], v1[4], v2[4];
+    if (locate(hm, X, Y, &c, &t, &s)) return 1;
+    rows2(t, u0, u1, u2);
+    rows2(s, v0, v1, v2);
+    int mx = hm->nx + 2;
+    double h0 = 0, hx = 0, hy = 0, hxx = 0, hxy = 0, hyy = 0;
+    for (int l = 0; l < 4; l++, c += mx) {
+        double r0 = u0[0] * c[0] + u0[1] * c[1] + u0[2] * c[2] + u0[3] * c[3];
+        double r1 = u1[0] * c[0] + u1[1] * c[1] + u1[2] * c[2] + u1[3] * c[3];
+        double r2 = u2[0] * c[0] + u2[1] * c[1] + u2[2] * c[2] + u2[3] * c[3];
+        h0 += r0 * v0[l];
+        hy += r0 * v1[l];
+        hyy += r0 * v2[l];
+        hx += r1 * v0[l];
+        hxy += r1 * v1[l];
+        hxx += r2 * v0[l];
+    }
+    double ix = 1.0 / hm->dx, iy = 1.0 / hm->dy;
+    *h = h0 / 36.0;
+    g[0] = hx * ix / 12.0;
+    g[1] = hy * iy / 12.0;
+    H[0] = hxx * ix * ix / 6.0;
+    H[1] = hxy * ix * iy / 4.0;
+    H[2] = hyy * iy * iy / 6.0;
+    return 0;
+}
+
+/* ------------------------------------------------------------------------------------- the rim search */
+
+static double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+static void cross3(const double *a, const double *b, double *c) {
+    c[0] = a[1] * b[2] - a[2] * b[1];
+    c[1] = a[2] * b[0] - a[0] * b[2];
+    c[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+#define RIM_NEWTON 4
+
+int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J, double bad[2]) {
+    const double *c = x, *a = x + 3, R = x[6];
+    double h0, g0[2], H0[3];
+    if (eval_h2(hm, c[0], c[1], &h0, g0, H0)) {
+        bad[0] = c[0], bad[1] = c[1];
+        return 1;
+    }
+    /* the frame: n0 the unit normal under the center, t its part perpendicular to the axle, r1 = -t/|t|,
+     * r2 = a x r1 (contact.rim_point's formulas, operation for operation where it matters) */
+    double m[3] = {-g0[0], -g0[1], 1.0}, mn = sqrt(dot3(m, m)), n0[3], t[3], r1[3], r2[3];
+    for (int k = 0; k < 3; k++) n0[k] = m[k] / mn;
+    double na = dot3(n0, a);
+    for (int k = 0; k < 3; k++) t[k] = n0[k] - na * a[k];
+    double tn = sqrt(dot3(t, t));
+    for (int k = 0; k < 3; k++) r1[k] = -(t[k] / tn);
+    cross3(a, r1, r2);
+    /* 13 samples of g(beta) = h(p) - p_Z on the lower half of the rim: beta = 0 first, then k = -6..6 */
+    static const int ORDER[13] = {0, -6, -5, -4, -3, -2, -1, 1, 2, 3, 4, 5, 6};
+    /* cos and sin of k pi / 12, k = 0..6, as the C library gives them (and CasADi folded them before) */
+    static const double COS[7] = {1.0, 0.96592582628906831, 0.86602540378443871, 0.70710678118654757,
+                                  0.50000000000000011, 0.25881904510252074, 6.123233995736766e-17};
+    static const double SIN[7] = {0.0, 0.25881904510252074, 0.49999999999999994, 0.70710678118654746,
+                                  0.8660254037844386, 0.96592582628906831, 1.0};
+    const double pi = 3.14159265358979323846;
+    /* Pruning, exact: every sample lies within R of the center horizontally; where that square is on the grid,
+     * the spline under it is at most the largest B-spline coefficient of its cells (the basis is nonnegative and
+     * sums to 1 there), so a sample whose p_Z is so high that even that height could not beat the best g so far
+     * is not evaluated: it could not have been chosen. (Off the grid's edge nothing is pruned, so a point off the
+     * grid still fails the evaluation as before.) */
+    double hmax = 0.0;
+    int prune = 0;
+    {
+        double Rb = R * (1.0 + 1e-9) + 1e-12;
+        double u0 = (c[0] - Rb - hm->x0) / hm->dx, u1 = (c[0] + Rb - hm->x0) / hm->dx;
+        double v0 = (c[1] - Rb - hm->y0) / hm->dy, v1 = (c[1] + Rb - hm->y0) / hm->dy;
+        if (u0 >= 0.0 && u1 <= hm->nx - 1 && v0 >= 0.0 && v1 <= hm->ny - 1) {
+            int i0 = cell(u0, hm->nx), i1 = cell(u1, hm->nx), j0 = cell(v0, hm->ny), j1 = cell(v1, hm->ny);
+            if ((i1 - i0 + 4) * (j1 - j0 + 4) <= 64) {
+                double lo = hm->coef[(size_t)j0 * (hm->nx + 2) + i0], hi = lo;
+                for (int jj = j0; jj <= j1 + 3; jj++) {
+                    const double *row = hm->coef + (size_t)jj * (hm->nx + 2);
+                    for (int ii = i0; ii <= i1 + 3; ii++) {
+                        if (row[ii] > hi) hi = row[ii];
+                        if (row[ii] < lo) lo = row[ii];
+                    }
+                }
+                hmax = hi + 1e-12 * (fabs(hi) + fabs(lo));     /* the basis sums to 1 up to rounding */
+                prune = 1;
+            }
+        }
+    }
+    double best_b = 0.0, best_g = 0.0;
+    for (int kk = 0; kk < 13; kk++) {
+        int k = ORDER[kk], ka = k < 0 ? -k : k;
+        double b = k * pi / 12, cb = COS[ka], sb = k < 0 ? -SIN[ka] : SIN[ka], p[3], h;
+        for (int i = 0; i < 3; i++) p[i] = c[i] + R * (cb * r1[i] + sb * r2[i]);
+        if (prune && kk > 0 && hmax - p[2] < best_g) continue;
+        if (eval_h(hm, p[0], p[1], &h)) {
+            bad[0] = p[0], bad[1] = p[1];
+            return 1;
+        }
+        double g = h - p[2];
+        if (kk == 0 || g > best_g) best_b = b, best_g = g;
+    }
+    /* Newton on g'(beta) = 0, never toward a minimum (a step only where g'' < 0); then the final point */
+    double b = best_b, p[3], dp[3], h, g[2], H[3], d1 = 0.0, d2 = 0.0, cb = 0.0, sb = 0.0;
+    for (int it = 0; it <= RIM_NEWTON; it++) {
+        cb = cos(b), sb = sin(b);
+        for (int i = 0; i < 3; i++) {
+            p[i] = c[i] + R * (cb * r1[i] + sb * r2[i]);
+            dp[i] = R * (-sb * r1[i] + cb * r2[i]);
+        }
+        if (eval_h2(hm, p[0], p[1], &h, g, H)) {
+            bad[0] = p[0], bad[1] = p[1];
+            return 1;
+        }
+        double ddp[3] = {c[0] - p[0], c[1] - p[1], c[2] - p[2]};
+        d1 = g[0] * dp[0] + g[1] * dp[1] - dp[2];
+        d2 = dp[0] * (H[0] * dp[0] + H[1] * dp[1]) + dp[1] * (H[1] * dp[0] + H[2] * dp[1]) + g[0] * ddp[0] +
+             g[1] * ddp[1] - ddp[2];
+        if (it == RIM_NEWTON) break;                  /* the final point: p, h, g, H, d2 are its */
+        /* where beta does not move (no step, or a step below its last bit) every later step evaluates this point
+         * again and moves nothing: this point is the final one, exactly as after all RIM_NEWTON steps */
+        if (!(d2 < 0)) break;
+        double next = b - d1 / d2;
+        if (next == b) break;
+        b = next;
+    }
+    e[0] = p[0], e[1] = p[1], e[2] = p[2], e[3] = h, e[4] = g[0], e[5] = g[1];
+    if (!J) return 0;
+    /* The Jacobian d e / d x, x = [c, a, R]. At the final beta where g'' < 0 the point is the rim's tangency
+     * point (g'(beta) = 0): the implicit function theorem gives d beta = -(d g' at fixed beta) / g'', so p's
+     * derivative is the derivative of the stationary point itself, whatever frame beta is measured in (exact
+     * when Newton has converged, which 4 steps from the best of 13 samples do to rounding on smooth ground).
+     * Where g'' >= 0 no step was taken: beta is a sample, constant, and p moves with the frame (r1 follows the
+     * normal under the center: its Hessian). */
+    int implicit = d2 < 0;
+    for (int col = 0; col < 7; col++) {
+        double dc[3] = {0, 0, 0}, da[3] = {0, 0, 0}, dR = 0.0;
+        if (col < 3) dc[col] = 1.0;
+        else if (col < 6) da[col - 3] = 1.0;
+        else dR = 1.0;
+        /* d n0 (only c_X, c_Y move it), d t, d r1, d r2 */
+        double dm[3] = {-(H0[0] * dc[0] + H0[1] * dc[1]), -(H0[1] * dc[0] + H0[2] * dc[1]), 0.0};
+        double dn0[3], dmn = dot3(n0, dm);
+        for (int k = 0; k < 3; k++) dn0[k] = (dm[k] - n0[k] * dmn) / mn;
+        double dna = dot3(dn0, a) + dot3(n0, da), dt[3], dr1[3], dr2[3], tmp[3];
+        for (int k = 0; k < 3; k++) dt[k] = dn0[k] - dna * a[k] - na * da[k];
+        double r1dt = dot3(r1, dt);
+        for (int k = 0; k < 3; k++) dr1[k] = -(dt[k] - r1[k] * r1dt) / tn;
+        cross3(da, r1, dr2);
+        cross3(a, dr1, tmp);
+        for (int k = 0; k < 3; k++) dr2[k] += tmp[k];
+        /* at fixed beta: d p and d p' (p' = dp/dbeta) */
+        double dpf[3], ddp1[3];
+        for (int k = 0; k < 3; k++) {
+            dpf[k] = dc[k] + dR * (cb * r1[k] + sb * r2[k]) + R * (cb * dr1[k] + sb * dr2[k]);
+            ddp1[k] = dR * (-sb * r1[k] + cb * r2[k]) + R * (-sb * dr1[k] + cb * dr2[k]);
+        }
+        double dbeta = 0.0;
+        if (implicit) {
+            double Hx = H[0] * dpf[0] + H[1] * dpf[1], Hy = H[1] * dpf[0] + H[2] * dpf[1];
+            double dG = Hx * dp[0] + Hy * dp[1] + g[0] * ddp1[0] + g[1] * ddp1[1] - ddp1[2];
+            dbeta = -dG / d2;
+        }
+        double dpt[3];
+        for (int k = 0; k < 3; k++) dpt[k] = dpf[k] + dp[k] * dbeta;
+        double *Jc = J + 6 * col;
+        Jc[0] = dpt[0], Jc[1] = dpt[1], Jc[2] = dpt[2];
+        Jc[3] = g[0] * dpt[0] + g[1] * dpt[1];
+        Jc[4] = H[0] * dpt[0] + H[1] * dpt[1];
+        Jc[5] = H[1] * dpt[0] + H[2] * dpt[1];
+    }
+    return 0;
+}
+
 /* ------------------------------------------------------------------------------- CasADi external functions */
 
 typedef long long int casadi_int;
@@ -245,17 +475,18 @@ static __thread heightmap *active;
 
 void heightmap_activate(heightmap *hm) { active = hm; }
 
+static int outside(const double *x) {
+    snprintf(active->msg, sizeof active->msg,
+             "the terrain was evaluated at (X, Y) = (%.6g, %.6g) m, outside the heightmap [%.6g, %.6g] x "
+             "[%.6g, %.6g] m",
+             x[0], x[1], active->x0, active->x0 + (active->nx - 1) * active->dx, active->y0,
+             active->y0 + (active->ny - 1) * active->dy);
+    return 1;
+}
+
 static int eval_active(const double *x, double *h, double *d1, double *d2, double *d3) {
     if (!active) return 1;
-    if (heightmap_eval(active, x[0], x[1], h, d1, d2, d3)) {
-        snprintf(active->msg, sizeof active->msg,
-                 "the terrain was evaluated at (X, Y) = (%.6g, %.6g) m, outside the heightmap [%.6g, %.6g] x "
-                 "[%.6g, %.6g] m",
-                 x[0], x[1], active->x0, active->x0 + (active->nx - 1) * active->dx, active->y0,
-                 active->y0 + (active->ny - 1) * active->dy);
-        return 1;
-    }
-    return 0;
+    return heightmap_eval(active, x[0], x[1], h, d1, d2, d3) ? outside(x) : 0;
 }
 
 /* CasADi compressed column sparsity: nrow, ncol, colind[ncol + 1], row[nnz] */
@@ -264,6 +495,11 @@ static const casadi_int SP_1[] = {1, 1, 0, 1, 0};
 static const casadi_int SP_1X2[] = {1, 2, 0, 1, 2, 0, 0};
 static const casadi_int SP_2X2[] = {2, 2, 0, 2, 4, 0, 1, 0, 1};
 static const casadi_int SP_4X2[] = {4, 2, 0, 4, 8, 0, 1, 2, 3, 0, 1, 2, 3};
+static const casadi_int SP_7[] = {7, 1, 0, 7, 0, 1, 2, 3, 4, 5, 6};
+static const casadi_int SP_6[] = {6, 1, 0, 6, 0, 1, 2, 3, 4, 5};
+static const casadi_int SP_6X7[] = {6, 7, 0, 6, 12, 18, 24, 30, 36, 42,
+                                    0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5,
+                                    0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5};
 
 #define EXTERNAL_SHAPE(name, n_in, n_out, sp_in, sp_out)                                                   \
     casadi_int name##_n_in(void) { return n_in; }                                                          \
@@ -281,9 +517,25 @@ static const casadi_int *const OUT0[] = {SP_1, SP_X, SP_2X2};
 static const casadi_int *const IN1[] = {SP_X, SP_1, SP_X, SP_2X2};
 static const casadi_int *const OUT1[] = {SP_1X2, SP_2X2, SP_4X2};
 
+/* cedra_rim_contact: (x[7] = [wheel center c, unit axle a, radius R]) -> (e[6] = [p, h(p), h_X(p), h_Y(p)],
+ * J[6x7] = de/dx): the wheel's contact point p (spec section 6: the 13-sample rim search and 4 Newton steps, in
+ * C, heightmap_rim) with the terrain's height and gradient there, and their exact derivative with respect to the
+ * wheel's pose (implicit function theorem at the tangency point). The model uses J explicitly
+ * (cedra.mechanics.terrain: the contact's chain rule), so nothing differentiates this function. cedra_rim_point: the same without J (the
+ * functions that hold no derivative, cedra_f above all). */
+static const casadi_int *const IN2[] = {SP_7};
+static const casadi_int *const OUT2[] = {SP_6, SP_6X7};
+/* jac_cedra_rim_point: (x, e) -> (de/dx [6x7]): cedra_rim_point differentiable once (CasADi's AD of a function
+ * that calls it, e.g. the Python side's MX Jacobian of cedra_f in cedra.reports.common) */
+static const casadi_int *const IN3[] = {SP_7, SP_6};
+static const casadi_int *const OUT3[] = {SP_6X7};
+
 /* the metadata CasADi reads when it loads the functions from a shared library (Python side, cedra.mechanics.heightmap) */
 EXTERNAL_SHAPE(cedra_heightmap, 1, 3, IN0, OUT0)
 EXTERNAL_SHAPE(jac_cedra_heightmap, 4, 3, IN1, OUT1)
+EXTERNAL_SHAPE(cedra_rim_contact, 1, 2, IN2, OUT2)
+EXTERNAL_SHAPE(cedra_rim_point, 1, 1, IN2, OUT2)
+EXTERNAL_SHAPE(jac_cedra_rim_point, 2, 1, IN3, OUT3)
 
 static const double ORIGIN[2] = {0.0, 0.0};     /* CasADi passes NULL for an all-zero argument */
 
@@ -295,6 +547,32 @@ int cedra_heightmap(const double **arg, double **res, casadi_int *iw, double *w,
 int jac_cedra_heightmap(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
     (void)iw, (void)w, (void)mem;
     return eval_active(arg[0] ? arg[0] : ORIGIN, NULL, res[0], res[1], res[2]);
+}
+
+static const double ZERO7[7] = {0, 0, 0, 0, 0, 0, 0};
+
+static int rim_active(const double *x, double *e_out, double *J_out) {
+    double e[6], J[42], bad[2];
+    if (!active) return 1;
+    if (heightmap_rim(active, x ? x : ZERO7, e, J_out ? J : NULL, bad)) return outside(bad);
+    if (e_out) memcpy(e_out, e, sizeof e);
+    if (J_out) memcpy(J_out, J, sizeof J);
+    return 0;
+}
+
+int cedra_rim_contact(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
+    (void)iw, (void)w, (void)mem;
+    return rim_active(arg[0], res[0], res[1]);
+}
+
+int cedra_rim_point(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
+    (void)iw, (void)w, (void)mem;
+    return rim_active(arg[0], res[0], NULL);
+}
+
+int jac_cedra_rim_point(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
+    (void)iw, (void)w, (void)mem;
+    return rim_active(arg[0], NULL, res[0]);
 }
 
 #ifdef CEDRA_HEIGHTMAP_HOST

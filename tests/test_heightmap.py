@@ -161,3 +161,183 @@ def test_model_on_a_heightmap_plane_equals_the_analytic_slope(tmp_path):
         jb = [np.array(v) for v in fs["cedra_rjac"](q, u, u, inp_s, par)]
         for x, y in zip(ja[:2], jb[:2]):
             assert np.max(np.abs(x - y)) <= 1e-8 * np.max(np.abs(y))
+
+
+# ---------------------------------------------------------------- the wheel's contact point in C (issue 13 item 5)
+def hills_states(model, n, seed):
+    """n random states of the hills3d model with the rover on the hills (X 0.8..3.2 m), its wheels pressed a few
+    mm into the ground (cedra_guess), joints and speeds perturbed. Makes the shipped grid the active map (another
+    test may have loaded its own; off the active grid the Python-side functions would quietly give 0)."""
+    heightmap.load(scene.load_shipped("hills3d").options.heightmap)
+    fns = model.functions()
+    names = model.q_names
+    par = model.default_par()
+    inp = model.default_inp(**{f"tau[{i}]": 1.0 for i in range(1, 7)})
+    q0 = np.array(model.spec("t").q_start)
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        q = q0 + rng.normal(scale=0.02, size=q0.size)
+        q[names.index("x")] = rng.uniform(0.8, 3.2)
+        q[names.index("y")] = rng.uniform(-0.4, 0.4)
+        q = np.array(fns["cedra_guess"](q, inp, par)).ravel() + rng.normal(scale=0.005, size=q0.size)
+        u = rng.normal(scale=0.2, size=q0.size)
+        assert np.max(np.abs(np.array(fns["cedra_f"](q, u, inp, par)[0]))) > 10      # in contact, on the grid
+        out.append((q, u, rng.normal(size=q0.size)))
+    return fns, par, inp, out
+
+
+@pytest.fixture(scope="module")
+def hills_models():
+    opt = scene.load_shipped("hills3d").options
+    return CedraModel(opt), CedraModel(opt, symbolic_rim=True)
+
+
+def test_c_rim_search_equals_the_symbolic_search(hills_models):
+    """The C search (one cedra_rim_contact per wheel, its Jacobian by the implicit function theorem) against the
+    symbolic one it replaces (13 samples and 4 Newton steps of the point external, differentiated by CasADi):
+    f, the outputs, the settle residual and every Jacobian agree at random states on the hills."""
+    new, old = hills_models
+    fn, par, inp, states = hills_states(new, 6, seed=11)
+    fo = old.functions()
+    assert fn["cedra_rjac"].n_instructions() < 0.5 * fo["cedra_rjac"].n_instructions()
+    moved = 0
+    for q, u, a in states:
+        f_new, f_old = (np.array(f["cedra_f"](q, u, inp, par)[0]).ravel() for f in (fn, fo))
+        assert np.max(np.abs(f_old)) > 10                                  # in contact
+        assert np.max(np.abs(f_new - f_old)) <= 1e-12 * np.max(np.abs(f_old))
+        y_new, y_old = (np.array(f["cedra_out"](q, u, [0.0], inp, par)).ravel() for f in (fn, fo))
+        assert np.max(np.abs(y_new - y_old)) <= 1e-12 * np.max(np.abs(y_old))
+        for x, y in zip(*(f["cedra_rjac"](q, u, a, inp, par) for f in (fn, fo))):
+            x, y = np.array(x), np.array(y)
+            assert np.max(np.abs(x - y)) <= 1e-12 * max(1.0, np.max(np.abs(y)))
+        for x, y in zip(*(f["cedra_settle"](q, inp, par) for f in (fn, fo))):
+            x, y = np.array(x), np.array(y)
+            assert np.max(np.abs(x - y)) <= 1e-12 * max(1.0, np.max(np.abs(y)))
+        # the contact points are off the sample angles: the Newton steps (and their derivatives) did work
+        ypts = dict(zip([o.name for o, _ in new.outputs()], y_new))
+        moved += sum(abs(ypts[f"wheel[{k}].psi"]) > 1e-3 for k in range(1, 7))
+    assert moved > 6
+
+
+def rim_cases(seed, n):
+    """Random wheel poses x = [center, unit axle, radius] over the shipped hills."""
+    rng = np.random.default_rng(seed)
+    X, Y, _ = hills.grid()
+    cases = []
+    for _ in range(n):
+        c = np.array([rng.uniform(0.8, 3.2), rng.uniform(-0.6, 0.6), 0.0])
+        c[2] = hills.heights(c[0], c[1]) + rng.uniform(0.04, 0.064)
+        yaw, tilt = rng.uniform(-np.pi, np.pi), rng.normal(scale=0.2)
+        a = np.array([-np.sin(yaw) * np.cos(tilt), np.cos(yaw) * np.cos(tilt), np.sin(tilt)])
+        cases.append(np.concatenate([c, a, [0.065]]))
+    return cases
+
+
+@pytest.fixture()
+def shipped_map():
+    heightmap.load(scene.load_shipped("hills3d").options.heightmap)
+
+
+def test_rim_contact_is_the_deepest_rim_point(shipped_map):
+    """Independent of the search: the contact point is the point of the lower rim with the largest
+    g = h(p) - p_Z on a dense scan (20001 angles), and the height and gradient it returns are the terrain's there."""
+    ext, point, pt = heightmap.rim_external(), heightmap.rim_external(jacobian=False), terrain_fn()
+    scan = pt.map(20001)
+    for x in rim_cases(5, 20):
+        e = np.array(ext(x)[0]).ravel()
+        assert np.array_equal(np.array(point(x)).ravel(), e)          # cedra_rim_point: the same, no Jacobian
+        c, a, R = x[:3], x[3:6], x[6]
+        r1 = np.cross(a, [0.0, 0.0, 1.0])
+        r1 = np.cross(r1, a)
+        r1 = -r1 / np.linalg.norm(r1)                      # lowest rim point's direction; the scan covers +-90 deg
+        r2 = np.cross(a, r1)
+        b = np.linspace(-np.pi / 2, np.pi / 2, 20001)
+        P = c[:, None] + R * (np.cos(b)[None, :] * r1[:, None] + np.sin(b)[None, :] * r2[:, None])
+        g = np.array(scan(P[:2])[0]).ravel() - P[2]
+        k = int(np.argmax(g))
+        assert np.linalg.norm(e[:3] - P[:, k]) < R * np.pi / 20000         # within the scan's resolution
+        assert abs(np.dot(e[:3] - c, a)) < 1e-14 and abs(np.linalg.norm(e[:3] - c) - R) < 1e-14   # on the rim
+        h, grad = (np.array(v).ravel() for v in pt(e[:2])[:2])
+        assert abs(e[3] - h[0]) < 1e-15 and np.max(np.abs(e[4:6] - grad)) < 1e-14
+        assert g[k] - 1e-15 <= e[3] - e[2] <= g[k] + 1e-9       # no scanned point is deeper, the scan comes close
+
+
+def test_rim_contact_jacobian_matches_finite_differences(shipped_map):
+    ext = heightmap.rim_external()
+    d = 1e-6
+    for x in rim_cases(9, 20):
+        J = np.array(ext(x)[1])
+        for k in range(7):
+            dx = np.eye(7)[k] * d
+            fd = (np.array(ext(x + dx)[0]) - np.array(ext(x - dx)[0])).ravel() / (2 * d)
+            assert np.max(np.abs(fd - J[:, k])) < 1e-7 * max(1.0, np.max(np.abs(J[:, k]))), (x, k)
+
+
+def test_model_jacobian_matches_finite_differences(hills_models):
+    """The contact point's dependence on the pose enters cedra_rjac exactly: dr/dq and dr/du of r = M a - f
+    against central differences of cedra_M and cedra_f on the hills."""
+    m = hills_models[0]
+    fns, par, inp, states = hills_states(m, 3, seed=4)
+    d = 1e-7
+
+    def r(q, u, a):
+        return np.array(fns["cedra_M"](q, par)) @ a - np.array(fns["cedra_f"](q, u, inp, par)[0]).ravel()
+
+    for q, u, a in states:
+        dq, du = (np.array(v) for v in fns["cedra_rjac"](q, u, a, inp, par)[:2])
+        scale = max(np.max(np.abs(dq)), 1.0)
+        for k in range(q.size):
+            e = np.eye(q.size)[k] * d
+            assert np.max(np.abs((r(q + e, u, a) - r(q - e, u, a)) / (2 * d) - dq[:, k])) < 1e-6 * scale, k
+            assert np.max(np.abs((r(q, u + e, a) - r(q, u - e, a)) / (2 * d) - du[:, k])) < 1e-6 * scale, k
+
+
+def test_c_rim_search_on_rough_ground_equals_the_symbolic_search(tmp_path):
+    """On a rough random grid (bumps as high as the wheel's radius within a few cells: the best sample often
+    not at the bottom, g'' >= 0 at some, steep faces) the C search's point equals contact.rim_point's, formed
+    symbolically through the point external, and its Jacobian equals CasADi's derivative of that search where the
+    search converged (a Newton step taken at the end)."""
+    from cedra.mechanics.contact import rim_point
+    from cedra.mechanics.terrain import Terrain
+    rng = np.random.default_rng(21)
+    Z = rng.normal(size=(15, 15)) * 0.03
+    path = heightmap.write(tmp_path / "rough.txt", Z, -0.35, -0.35, 0.05, 0.05)
+    terrain = Terrain("heightmap", {}, str(path), symbolic_rim=True)
+    x = ca.SX.sym("x", 7)
+    p = rim_point(x[0:3], x[3:6], terrain, x[6])
+    sym = ca.Function("rim", [x], [p, ca.jacobian(p, x)])
+    ext = heightmap.rim_external()
+    n_off_bottom = n_compared = 0
+    for _ in range(200):
+        c = np.array([*rng.uniform(-0.2, 0.2, 2), 0.0])
+        c[2] = float(terrain.height(c[0], c[1])) + rng.uniform(-0.02, 0.06)
+        yaw, tilt = rng.uniform(-np.pi, np.pi), rng.normal(scale=0.3)
+        a = np.array([-np.sin(yaw) * np.cos(tilt), np.cos(yaw) * np.cos(tilt), np.sin(tilt)])
+        xv = np.concatenate([c, a, [0.065]])
+        e, J = (np.array(v) for v in ext(xv))
+        ps, Js = (np.array(v) for v in sym(xv))
+        assert np.max(np.abs(e[:3].ravel() - ps.ravel())) < 1e-15
+        n_off_bottom += abs(e[2, 0] - c[2] + 0.065) > 5e-3
+        # the derivative: where Newton converged (the usual case) the implicit function theorem's is CasADi's
+        # derivative of the 4 steps; where 4 steps did not converge they differ (1 case of 200 here)
+        if np.max(np.abs(J[:3] - Js)) < 1e-9 * max(1.0, np.max(np.abs(Js))):
+            n_compared += 1
+    assert n_off_bottom > 100           # the rough ground did move the contact away from the rim's bottom
+    assert n_compared >= 195
+
+
+def test_cedra_f_is_differentiable_once_through_the_rim_point(hills_models):
+    """CasADi's own derivative of cedra_f (what the Python side's reference integrators take: its MX Jacobian goes
+    through jac_cedra_rim_point) equals cedra_rjac's: at a = 0, dr/dq = -df/dq and dr/du = -df/du."""
+    m = hills_models[0]
+    fns, par, inp, states = hills_states(m, 2, seed=8)
+    q, u = ca.MX.sym("q", m.q.numel()), ca.MX.sym("u", m.q.numel())
+    f = fns["cedra_f"](q, u, inp, par)[0]
+    jf = ca.Function("jf", [q, u], [ca.jacobian(f, q), ca.jacobian(f, u)])
+    zero = np.zeros(m.q.numel())
+    for qv, uv, _ in states:
+        dq, du = (np.array(v) for v in fns["cedra_rjac"](qv, uv, zero, inp, par)[:2])
+        fq, fu = (np.array(v) for v in jf(qv, uv))
+        assert np.max(np.abs(fq + dq)) <= 1e-10 * np.max(np.abs(dq))
+        assert np.max(np.abs(fu + du)) <= 1e-10 * np.max(np.abs(du))

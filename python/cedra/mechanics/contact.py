@@ -64,11 +64,18 @@ def rim_point(center, axle, terrain: Terrain, radius):
 
 
 def contact_geometry(center, axle, terrain: Terrain, radius) -> ContactGeometry:
-    p = rim_point(center, axle, terrain, radius)
-    n = terrain.normal(p[0], p[1])
+    if terrain.external_rim:
+        # heightmap: the same search in C (one call per wheel, its derivatives exact; see terrain.Terrain)
+        p, h, grad = terrain.rim_contact(center, axle, radius)
+        n = ca.vertcat(-grad[0], -grad[1], 1)
+        n = n / ca.norm_2(n)
+    else:
+        p = rim_point(center, axle, terrain, radius)
+        n = terrain.normal(p[0], p[1])
+        h = terrain.height(p[0], p[1])
     x = unit(ca.cross(axle, n))
     y = ca.cross(n, x)
-    depth = (terrain.height(p[0], p[1]) - p[2]) * n[2]
+    depth = (h - p[2]) * n[2]
     ahead = unit(ca.cross(axle, ca.vertcat(0, 0, 1)))    # horizontal forward direction of the rolling plane
     slope = ca.atan2(-ca.dot(n, ahead), n[2])
     return ContactGeometry(p, n, ca.horzcat(x, y, n), depth, slope)

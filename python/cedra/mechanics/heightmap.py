@@ -3,8 +3,9 @@
 One implementation only: the file reader, the natural bicubic spline and its derivatives are C
 (fmu_src/heightmap.c, format in heightmap.h). The FMU compiles that file and reads resources/heightmap.txt at
 fmi2Instantiate; here the same file is compiled into a small host library so that the symbolic model can call the
-terrain (CasADi external functions, with Jacobians to third order for the rim search and the implicit solver's
-Jacobian), tests can evaluate it, and a scene's heightmap is validated before any code is generated.
+terrain (CasADi external functions: a wheel's contact point with its derivatives, cedra_rim_contact, and single
+points with Jacobians to third order, cedra_heightmap), tests can evaluate it, and a scene's heightmap is
+validated before any code is generated.
 
 The host library holds ONE process-wide map (the last one loaded), active in the thread that loaded it: the
 Python-side model functions of a heightmap scene evaluate whichever map was loaded last.
@@ -30,6 +31,8 @@ REPO_ROOT = Path(__file__).resolve().parents[3]
 SOURCE = REPO_ROOT / "fmu_src" / "heightmap.c"
 HOST_DIR = REPO_ROOT / "build" / "host"
 EXTERNAL_NAME = "cedra_heightmap"
+RIM_EXTERNAL_NAME = "cedra_rim_contact"
+RIM_POINT_EXTERNAL_NAME = "cedra_rim_point"        # the same without the Jacobian
 RESOURCE_NAME = "heightmap.txt"      # the file's name inside the FMU's resources/
 
 
@@ -96,3 +99,12 @@ def external() -> ca.Function:
     """cedra_heightmap: (x[2] = [X, Y]) -> h, an external CasADi function on the active map (see load)."""
     _ctypes_lib()           # the same shared object: CasADi's dlopen returns the handle ctypes holds
     return ca.external(EXTERNAL_NAME, str(host_library()))
+
+
+def rim_external(jacobian: bool = True) -> ca.Function:
+    """cedra_rim_contact: (x[7] = [wheel center, unit axle, radius]) -> (e[6] = [p, h(p), h_X(p), h_Y(p)],
+    J[6x7] = de/dx), the wheel's contact point by the spec's rim search (in C, heightmap.c: heightmap_rim) and its
+    exact derivative (implicit function theorem), on the active map (see load). jacobian=False: cedra_rim_point,
+    x -> e alone."""
+    _ctypes_lib()
+    return ca.external(RIM_EXTERNAL_NAME if jacobian else RIM_POINT_EXTERNAL_NAME, str(host_library()))

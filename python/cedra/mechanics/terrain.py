@@ -63,13 +63,26 @@ class Terrain:
     """A terrain kind bound to its symbolic inputs: height, gradient, Hessian and unit normal.
 
     Derivatives are outputs of one function, never taken by differentiating the terrain inside the model: the
-    heightmap is an external C function (cedra.mechanics.heightmap) whose derivative chain is finite, so the model uses
-    h, gradient and Hessian explicitly (one level of symbolic differentiation of the model remains possible)."""
+    heightmap is an external C function (cedra.mechanics.heightmap) whose derivative chain is finite, so the model
+    uses h, gradient and Hessian explicitly (one level of symbolic differentiation of the model remains possible).
 
-    def __init__(self, kind: str, inputs: dict[str, ca.SX], heightmap_file: str = ""):
-        """heightmap_file: the grid of kind "heightmap"; it is loaded as the process's active map."""
+    The heightmap's wheel contact (external_rim, the default for kind "heightmap"): the whole rim search of a
+    wheel is one call of the C function cedra_rim_contact, which returns the contact point, the height and
+    gradient there, and their Jacobian J with respect to the wheel's pose x = [center, axle, radius]. The model
+    sees them through rim_contact() as  e = e0 + J0 (x - x0)  with e0, J0, x0 free symbols, so every derivative
+    the model takes (Jacobians, rates) applies the chain rule through J0; resolve() then puts in x0 = x and
+    (e0, J0) = cedra_rim_contact(x): one C call per wheel and function, and the contact point's dependence on the
+    pose enters the derivatives exactly (implicit function theorem in C) instead of through the symbolic
+    derivatives of 13 samples and 4 Newton steps."""
+
+    def __init__(self, kind: str, inputs: dict[str, ca.SX], heightmap_file: str = "", symbolic_rim: bool = False):
+        """heightmap_file: the grid of kind "heightmap"; it is loaded as the process's active map.
+        symbolic_rim: kind "heightmap" with the rim search formed symbolically (contact.rim_point through the
+        point external cedra_heightmap), as before the C search: the reference the tests compare against."""
         self.kind = KINDS[kind]
         self.inputs = inputs
+        self.external_rim = kind == "heightmap" and not symbolic_rim
+        self._frozen = []           # (x0, e0, J0, x) per rim_contact call
         X, Y = ca.SX.sym("X"), ca.SX.sym("Y")
         t = [inputs[n] for n in self.kind.inputs]
         if kind == "heightmap":
@@ -99,3 +112,29 @@ class Terrain:
         g = self.local(X, Y)[1]
         n = ca.vertcat(-g[0], -g[1], 1)
         return n / ca.norm_2(n)
+
+    def rim_contact(self, center, axle, radius):
+        """(p, h(p), gradient at p) of the wheel (external_rim only), linear in the wheel's pose about free
+        symbols that resolve() replaces (see the class)."""
+        x = ca.vertcat(center, axle, radius)
+        x0, e0, J0 = ca.SX.sym("rim_x0", 7), ca.SX.sym("rim_e0", 6), ca.SX.sym("rim_J0", 6, 7)
+        self._frozen.append((x0, e0, J0, x))
+        e = e0 + J0 @ (x - x0)
+        return e[0:3], e[3], e[4:6]
+
+    def resolve(self, exprs: list, derivatives: bool = True) -> list:
+        """exprs with the rim contacts' symbols put in: x0 = x, (e0, J0) = cedra_rim_contact(x). derivatives=False
+        for expressions that hold no derivative of a contact: J0 = 0 there, e0 = cedra_rim_point(x) (no Jacobian
+        computed)."""
+        if not self._frozen:
+            return list(exprs)
+        ext = heightmap.rim_external(derivatives)
+        syms, vals = [], []
+        for x0, e0, J0, x in self._frozen:
+            if derivatives:
+                e, J = ext(x)
+            else:
+                e, J = ext(x), ca.SX.zeros(6, 7)
+            syms += [x0, e0, J0]
+            vals += [x, e, J]
+        return ca.substitute(list(exprs), syms, vals)

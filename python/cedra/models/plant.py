@@ -91,7 +91,9 @@ def _out(name, unit, description, type="Real"):
 class CedraModel:
     """The rover's equations for one set of scene options. Symbolic pieces are public for tests."""
 
-    def __init__(self, opt: ModelOptions):
+    def __init__(self, opt: ModelOptions, symbolic_rim: bool = False):
+        """symbolic_rim: a heightmap scene's rim search formed symbolically instead of the C search (the
+        reference the tests compare the C search against; see terrain.Terrain)."""
         if opt.contact not in ("compliant", "rigid"):
             raise ValueError(f"unknown contact model {opt.contact!r} (compliant or rigid)")
         if opt.drives and opt.locked_wheels:
@@ -113,7 +115,8 @@ class CedraModel:
         self.tau = self.applied_torques([i_.get(f"tau[{k}]", 0) for k in range(1, 7)])
         steer = (i_["steer[1]"], i_["steer[2]"]) if opt.steering else None
         self.rover = describe(self.qf, self.rate, p, self.tau, steer)
-        self.terrain = Terrain(opt.terrain, {n: i_[n] for n in KINDS[opt.terrain].inputs}, opt.heightmap)
+        self.terrain = Terrain(opt.terrain, {n: i_[n] for n in KINDS[opt.terrain].inputs}, opt.heightmap,
+                               symbolic_rim)
         self.kane = KaneSystem(self.q, self.u, list(self.rover.bodies))
         self.kane.add_generalized_force(ca.jacobian(self.rate(self.qf), self.u).T @ self.rover.coordinate_torques)
         for b in self.rover.bodies:                                  # gravity: -m g Z at each mass center
@@ -287,7 +290,9 @@ class CedraModel:
                 T, w0 = p["drive_stall_torque"], p["drive_noload_speed"]
                 s += [T * (1 - w / w0) - cmd, cmd + T * (1 + w / w0)]
                 names += [f"wheel[{k + 1}] drive upper edge", f"wheel[{k + 1}] drive lower edge"]
-        if not self.terrain.planar:
+        # the heightmap's rim search is its own C function (mechanics/heightmap.py): its choices are not these
+        # 13 samples, so no rim switch there
+        if not self.terrain.planar and self.opt.terrain != "heightmap":
             for c in self.contacts:
                 wh = c["wheel"]
                 g = rim_samples(wh.center, wh.axle, self.terrain, p["R_w"])
@@ -327,25 +332,25 @@ class CedraModel:
             res = ca.substitute(self.f, u, ca.DM.zeros(n))[sidx]
         jac = ca.jacobian(res, q)[:, sidx]
         fns = {}
+        res_ = self.terrain.resolve      # a heightmap's contact points (terrain.Terrain.resolve; others: as is)
         if self.rigid:
             vc = ca.vertcat(*[c["vc"] for c in self.contacts])
             W = ca.jacobian(vc, u)
-            fns["cedra_contact"] = ca.Function("cedra_contact", [q, u, inp, par],
-                                               [W, ca.jtimes(vc, q, u), vc,
-                                                ca.vertcat(*[-c["geo"].depth for c in self.contacts])])
+            fns["cedra_contact"] = ca.Function("cedra_contact", [q, u, inp, par], res_(
+                [W, ca.jtimes(vc, q, u), vc, ca.vertcat(*[-c["geo"].depth for c in self.contacts])]))
         sw, hold, hold_now, _ = self.switches
         if sw:
             hv = ca.vertcat(*hold) if hold else ca.SX(0, 1)
-            fns["cedra_switch"] = ca.Function("cedra_switch", [q, u, inp, par, hv],
-                                              [ca.vertcat(*sw), ca.vertcat(*hold_now) if hold else ca.SX(0, 1)])
+            fns["cedra_switch"] = ca.Function("cedra_switch", [q, u, inp, par, hv], res_(
+                [ca.vertcat(*sw), ca.vertcat(*hold_now) if hold else ca.SX(0, 1)], derivatives=False))
         return fns | {
             "cedra_M": ca.Function("cedra_M", [q, par], [self.M]),
-            "cedra_f": ca.Function("cedra_f", [q, u, inp, par], [self.f, self.power]),
+            "cedra_f": ca.Function("cedra_f", [q, u, inp, par], res_([self.f, self.power], derivatives=False)),
             "cedra_rjac": ca.Function("cedra_rjac", [q, u, a, inp, par],
-                                      [ca.jacobian(r, q), ca.jacobian(r, u),
-                                       ca.jacobian(self.power, q), ca.jacobian(self.power, u)]),
-            "cedra_out": ca.Function("cedra_out", [q, u, z, inp, par], [y]),
-            "cedra_settle": ca.Function("cedra_settle", [q, inp, par], [res, jac]),
+                                      res_([ca.jacobian(r, q), ca.jacobian(r, u),
+                                            ca.jacobian(self.power, q), ca.jacobian(self.power, u)])),
+            "cedra_out": ca.Function("cedra_out", [q, u, z, inp, par], res_([y])),
+            "cedra_settle": ca.Function("cedra_settle", [q, inp, par], res_([res, jac])),
             "cedra_guess": ca.Function("cedra_guess", [q, inp, par], [self.guess()]),
             "cedra_check": ca.Function("cedra_check", [q, u, inp, par], [self.check()]),
         }
@@ -385,7 +390,8 @@ class CedraModel:
             return level
         # on curved ground some wheels of the level pose hang in the air, where the equilibrium Jacobian has no
         # stiffness (singular): lower the pose until the highest wheel is 1 mm into the ground too
-        depths = ca.substitute(ca.vertcat(*[c["geo"].depth for c in self.contacts]), q, level)
+        depths = self.terrain.resolve([ca.vertcat(*[c["geo"].depth for c in self.contacts])], derivatives=False)[0]
+        depths = ca.substitute(depths, q, level)
         lower = ca.fmax(0, 1e-3 - ca.mmin(depths))
         return ca.vertcat(*[level[k] - lower if nm == "z" else level[k] for k, nm in enumerate(names)])
 
