@@ -110,6 +110,7 @@ def main(argv=None):
     c.add_argument("--stop-time", type=float, default=15.0)
     be = sub.add_parser("bench", help="benchmark the shipped FMUs (prints figures)")
     be.add_argument("--build", default="build")
+    be.add_argument("--quiet", action="store_true", help="no progress lines (the figures only)")
     be.add_argument("--stop-time", type=float, default=10.0)
     be.add_argument("--quick", action="store_true",
                     help="only the MuJoCo side-by-side table, 1 s runs (what the tests run)")

@@ -244,9 +244,9 @@ def main(args):
     if getattr(args, "step_cost", False):
         return print_step_cost(build)
     if getattr(args, "quick", False):       # the MuJoCo side-by-side table only, short (what the tests run)
-        return print_side_by_side(build, QUICK_STOP)
+        return print_side_by_side(build, QUICK_STOP, quiet=getattr(args, "quiet", False))
     if getattr(args, "side_by_side", False):
-        return print_side_by_side(build, SIDE_STOP)
+        return print_side_by_side(build, SIDE_STOP, quiet=getattr(args, "quiet", False))
     if not shutil.which("gcc"):
         print("error: gcc not found (needed to time the generated C)", file=sys.stderr)
         return 2
@@ -289,7 +289,7 @@ def main(args):
         for label in ("bump2d_rigid", "bump2d_rigid dopri5"):
             print(f"  ratio {label} / bump2d wall time: x{rows[label]['wall'] / rows['bump2d']['wall']:.2f}")
     rc = max(rc, print_step_cost(build))
-    return max(rc, print_side_by_side(build, SIDE_STOP))
+    return max(rc, print_side_by_side(build, SIDE_STOP, quiet=getattr(args, "quiet", False)))
 
 
 # ------------------------------------------------------------------ MuJoCo side by side (issue 13)
@@ -342,24 +342,30 @@ def fmu_closed_loop(path, stop_time, settings: dict | None = None, label=""):
                   extra=dict(rejected=rejected, rhs_evals=evals))
 
 
-def side_by_side(build: Path, stop_time=SIDE_STOP, dts=MUJOCO_DTS, log=print) -> dict:
+def side_by_side(build: Path, stop_time=SIDE_STOP, dts=MUJOCO_DTS, log=print, quiet=False) -> dict:
     """Every row of the table: MuJoCo on the bump (height field), on a plane and on the hills grid (height field)
     at each dt, and the FMUs; label -> Result (None: the FMU is not built)."""
     from cedra.reports import mujoco_model as mm
     from cedra.models.scene import load_shipped
+    from cedra.run.progress import Progress
     rows = {}
+    progress = Progress(len(MUJOCO_RUNS) * len(dts) + len(FMU_RUNS), "bench side by side", unit="runs",
+                        quiet=quiet)
     for name, (scene, terrain) in MUJOCO_RUNS.items():
         sc = load_shipped(scene)
         for dt in dts:
             label = f"MuJoCo {name} {dt * 1e3:g} ms"
             rows[label] = mm.run(sc, terrain, dt, stop_time, label=label)
             log(f"  ... {label}: {rows[label].cpu:.2f} s CPU")
+            progress(len(rows))
     for name in FMU_RUNS:
         path = Path(build) / f"{name}.fmu"
         label = f"FMU {name}"
         rows[label] = fmu_closed_loop(path, stop_time, label=label) if path.exists() else None
         if rows[label] is not None:
             log(f"  ... {label}: {rows[label].cpu:.2f} s CPU")
+        progress(len(rows))
+    progress.done()
     return rows
 
 
@@ -384,7 +390,7 @@ def side_by_side_table(rows: dict, stop_time: float) -> list[str]:
     return out
 
 
-def print_side_by_side(build: Path, stop_time: float, dts=MUJOCO_DTS) -> int:
+def print_side_by_side(build: Path, stop_time: float, dts=MUJOCO_DTS, quiet=False) -> int:
     from cedra.reports import mujoco_model as mm
     if not mm.available():
         print("\nMuJoCo side by side: skipped, mujoco is not installed (pip install -e '.[bench]'; ./build.sh "
@@ -395,6 +401,6 @@ def print_side_by_side(build: Path, stop_time: float, dts=MUJOCO_DTS) -> int:
           f"controller every 0.01 s; MuJoCo {mujoco.__version__} (cedra.reports.mujoco_model, Euler, settled "
           f"{mm.SETTLE:g} s untimed), FMUs at their scene defaults; CPU = time.process_time; peak Fn = the largest "
           f"wheel normal force at the 0.01 s samples")
-    rows = side_by_side(build, stop_time, dts)
+    rows = side_by_side(build, stop_time, dts, log=(lambda *a: None) if quiet else print, quiet=quiet)
     print("\n".join(side_by_side_table(rows, stop_time)))
     return 0 if all(r is not None and r.ok for r in rows.values()) else 1

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from cedra.models.scene import load_shipped
+from cedra.run.progress import Progress
 from cedra.reports.common import (Problem, Run, Schedule, errors, fmt, fmu_path, grid, md_table, position_names, fn_names,
                      python_run_outputs, reference_outputs, run_casadi, run_fmu, run_scipy, torques)
 
@@ -401,7 +402,14 @@ def main(args):
     if unknown:
         print(f"error: not a scene of the report: {sorted(unknown)} (it has {list(cfg.scenes)})", file=sys.stderr)
         return 2
-    results = [run_scene(name, cfg, build) for name in cfg.scenes if not only or name in only]
+    quiet = getattr(args, "quiet", False)
+    names = [name for name in cfg.scenes if not only or name in only]
+    progress = Progress(len(names), "report precision", unit="scenes", quiet=quiet, after=0.0)
+    results = []
+    for name in names:                      # per-run lines on stdout, the bar on stderr; --quiet: neither
+        results.append(run_scene(name, cfg, build, log=(lambda *a, **k: None) if quiet else print))
+        progress(len(results), f"{name} done")
+    progress.done()
     cmd = "python -m cedra report precision" + (" --quick" if cfg is QUICK else "") + \
         "".join(f" --scene {n}" for n in only or [])
     summary = write(results, out, cmd, time.perf_counter() - t0)
