@@ -126,6 +126,7 @@ def main(argv=None):
     r.add_argument("--quiet", action="store_true", help="no per-run lines, no progress (the report and summary only)")
     r.add_argument("--scene", action="append", default=None,
                    help="precision, defaults: only this scene of the report (repeatable)")
+    r.add_argument("--tol", type=float, help="defaults: compare rodas4 at this tolerance instead of the scene's defaults")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
     from cedra.run.watch import add_parser as add_watch_parser
