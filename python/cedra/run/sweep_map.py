@@ -72,7 +72,8 @@ def draw(sw, rows: list[dict] | None = None) -> Path:
     # the mark goes in the panel nearest its value of the panel parameter (every panel's if it has none)
     mark_panel = (min(panels, key=lambda v: abs(v - mark[spec['panels']]))
                   if 'panels' in spec and spec['panels'] in mark else None)
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels) + 1, 4.2), sharey=True, squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(max(7.0, 3.6 * len(panels) + 1), 4.6), sharey=True,
+                             squeeze=False)
     cmap = ListedColormap(["#d9534f", "#5cb85c", "#bbbbbb"])      # 0 fails, 1 climbs, 2 the run failed
     for ax, pv in zip(axes[0], panels):
         grid = np.full((len(ys), len(xs)), np.nan)
@@ -96,11 +97,11 @@ def draw(sw, rows: list[dict] | None = None) -> Path:
         ax.set_xlabel(spec.get("x_label", spec["x"]))
     axes[0][0].set_ylabel(spec.get("y_label", spec["y"]))
     handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in cmap.colors]
-    fig.legend(handles, [f"{spec['verdict']}: no", f"{spec['verdict']}: yes", "run failed"], loc="upper right",
+    fig.legend(handles, [f"{spec['verdict']}: no", f"{spec['verdict']}: yes", "run failed"], loc="lower center",
                ncol=3, fontsize=8)
     fig.suptitle(spec.get("title", f"{sw.name}: {spec['verdict']} ({len(rows)} runs of {sw.target.kind} {sw.target.name})"),
                  x=0.02, ha="left", fontsize=11)
-    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    fig.tight_layout(rect=(0, 0.06, 1, 0.93))
     out = sw.out / f"{sw.name}.png"
     fig.savefig(out, dpi=110)
     plt.close(fig)
