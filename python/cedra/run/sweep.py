@@ -51,6 +51,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cedra.run.sweep_map import check_map, draw
+
 CONTROLLER = {"tau_max": 4.0, "v_ref": 0.2}        # the main job's controller (cedra.run.simulate)
 # summary outputs of one run (see summarize); status and reason are always kept
 OUTPUTS = {
@@ -296,8 +298,10 @@ def load(path) -> Sweep:
     if not sw.grid and not sw.random:
         _fail(path, "grid", "nothing to vary: give [grid] and/or [random]")
     if "map" in data:
-        from cedra.run.sweep_map import check_map
-        check_map(path, data["map"], sw)
+        problem = check_map(data["map"], sw)
+        if problem:
+            key, reason = problem
+            _fail(path, f"map.{key}" if key else "map", reason)
     sw.map = data.get("map")
     return sw
 
@@ -567,6 +571,5 @@ def main(args) -> int:
     print(f"sweep {sw.name}: {c['total']} runs, {c['skipped']} already in the table, {c['ran']} run "
           f"({c['failed']} failed) in {wall:.1f} s{rate}; table {sw.table}")
     if sw.map:
-        from cedra.run.sweep_map import draw
-        print(f"map {draw(sw)}")
+        print(f"map {draw(sw, read_table(sw.table))}")
     return 0

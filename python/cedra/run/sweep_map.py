@@ -22,49 +22,44 @@ import numpy as np
 KEYS = {"x", "y", "panels", "verdict", "x_scale", "x_label", "panel_scale", "panel_label", "y_label", "mark", "title"}
 
 
-def check_map(path, spec, sw) -> None:
-    from cedra.run.sweep import SweepError
-
-    def fail(key, reason):
-        raise SweepError(f"{path}: map.{key}: {reason}")
+def check_map(spec, sw) -> tuple[str, str] | None:
+    """The first problem of a sweep's [map] table as (key under map, reason), or None."""
     if not isinstance(spec, dict):
-        raise SweepError(f"{path}: map: expected a table")
+        return "", "expected a table"
     for k in spec:
         if k not in KEYS:
-            fail(k, f"unknown key (known: {', '.join(sorted(KEYS))})")
+            return k, f"unknown key (known: {', '.join(sorted(KEYS))})"
     for k in ("x", "y", "verdict"):
         if k not in spec:
-            fail(k, "missing")
+            return k, "missing"
     for k in ("x", "y", "panels"):
         if k in spec and spec[k] not in sw.grid:
-            fail(k, f"{spec[k]!r} is not a [grid] parameter of this sweep (grid: {', '.join(sw.grid)})")
+            return k, f"{spec[k]!r} is not a [grid] parameter of this sweep (grid: {', '.join(sw.grid)})"
     if spec["verdict"] not in sw.outputs:
-        fail("verdict", f"{spec['verdict']!r} is not one of this sweep's outputs ({', '.join(sw.outputs)})")
+        return "verdict", f"{spec['verdict']!r} is not one of this sweep's outputs ({', '.join(sw.outputs)})"
     for k in ("x_scale", "panel_scale"):
         if k in spec and not (isinstance(spec[k], (int, float)) and spec[k] > 0):
-            fail(k, f"expected a number > 0, got {spec[k]!r}")
+            return k, f"expected a number > 0, got {spec[k]!r}"
     mark = spec.get("mark", {})
     if mark and not (isinstance(mark, dict) and spec["x"] in mark and spec["y"] in mark):
-        fail("mark", f"expected a table with {spec['x']} and {spec['y']} (and optionally label)")
+        return "mark", f"expected a table with {spec['x']} and {spec['y']} (and optionally label)"
     for name in mark:
         if name != "label" and name not in sw.grid:
-            fail(f"mark.{name}", f"not a [grid] parameter of this sweep (grid: {', '.join(sw.grid)})")
+            return f"mark.{name}", f"not a [grid] parameter of this sweep (grid: {', '.join(sw.grid)})"
+    return None
 
 
 def _close(a, b) -> bool:
     return abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))
 
 
-def draw(sw, rows: list[dict] | None = None) -> Path:
-    """Draw the map from the sweep's table; returns the PNG's path."""
+def draw(sw, rows: list[dict]) -> Path:
+    """Draw the map from the sweep's table rows (as read from its CSV); returns the PNG's path."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap
-    from cedra.run.sweep import read_table
-
     spec = sw.map
-    rows = rows if rows is not None else read_table(sw.table)
     xs, ys = sw.grid[spec["x"]], sw.grid[spec["y"]]
     panels = sw.grid[spec["panels"]] if "panels" in spec else [None]
     xscale, pscale = spec.get("x_scale", 1.0), spec.get("panel_scale", 1.0)
