@@ -6,32 +6,18 @@
   touchdown; without location no accepted step is that short around it."""
 import ctypes
 import math
-import shutil
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
+from solver_harness import compile_harness
 
-ROOT = Path(__file__).resolve().parents[1]
-SRC = ROOT / "fmu_src"
-HARNESS = ROOT / "tests" / "c" / "solver_harness.c"
-CFLAGS = ["-std=c99", "-O2", "-fPIC", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 DOPRI5, RODAS4 = 1, 2
 _D = ctypes.POINTER(ctypes.c_double)
 
 
 @pytest.fixture(scope="module")
 def lib(tmp_path_factory):
-    gcc = shutil.which("gcc")
-    if gcc is None:
-        pytest.skip("gcc not available")
-    out = tmp_path_factory.mktemp("solver_events") / "libsolver_harness.so"
-    cmd = [gcc, *CFLAGS, "-shared", f"-I{SRC}", str(HARNESS), str(SRC / "solver.c"), str(SRC / "linalg.c"),
-           "-lm", "-o", str(out)]
-    res = subprocess.run(cmd, capture_output=True, text=True)
-    assert res.returncode == 0 and res.stderr.strip() == "", f"gcc failed or warned:\n{res.stderr}"
-    so = ctypes.CDLL(str(out))
+    so = compile_harness(tmp_path_factory.mktemp("solver_events"))
     so.harness_stage_solve.restype = ctypes.c_int
     so.harness_stage_solve.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_double, _D, _D, _D, _D]
     so.harness_ball.restype = ctypes.c_int

@@ -3,17 +3,11 @@ tests/c/solver_harness.c compiled with the FMU's strict flags and called with ct
 import ctypes
 import math
 import re
-import shutil
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
+from solver_harness import compile_harness
 
-ROOT = Path(__file__).resolve().parents[1]
-SRC = ROOT / "fmu_src"
-HARNESS = ROOT / "tests" / "c" / "solver_harness.c"
-CFLAGS = ["-std=c99", "-O2", "-fPIC", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 
 RK4, DOPRI5, RODAS4 = 0, 1, 2
 NAMES = {RK4: "rk4", DOPRI5: "dopri5", RODAS4: "rodas4"}
@@ -27,15 +21,7 @@ SENTINEL = 12345.678
 
 @pytest.fixture(scope="module")
 def lib(tmp_path_factory):
-    gcc = shutil.which("gcc")
-    if gcc is None:
-        pytest.skip("gcc not available")
-    out = tmp_path_factory.mktemp("solver") / "libsolver_harness.so"
-    cmd = [gcc, *CFLAGS, "-shared", f"-I{SRC}", str(HARNESS), str(SRC / "solver.c"), str(SRC / "linalg.c"),
-           "-lm", "-o", str(out)]
-    res = subprocess.run(cmd, capture_output=True, text=True)
-    assert res.returncode == 0 and res.stderr.strip() == "", f"gcc failed or warned:\n{res.stderr}"
-    so = ctypes.CDLL(str(out))
+    so = compile_harness(tmp_path_factory.mktemp("solver"))
     so.harness_workspace.restype = ctypes.c_size_t
     so.harness_workspace.argtypes = [ctypes.c_int, ctypes.c_int]
     so.harness_run.restype = ctypes.c_int

@@ -157,9 +157,11 @@ def run_scene(name, cfg: Config, build="build", log=print) -> SceneResult:
     path = fmu_path(build, name)
     res.fmu_available = path.exists()
 
-    def fmu(method, tol, h_max, comm):
-        r = run_fmu(path, prob, sched, q0, t_end, comm, method, tol, h_max, record=watch, record_every=OUT_DT,
+    def fmu(method, tol, h_max, comm, fmu_file=path, label=None):
+        r = run_fmu(fmu_file, prob, sched, q0, t_end, comm, method, tol, h_max, record=watch, record_every=OUT_DT,
                     check_all=False)
+        if label:
+            r.method = label
         e = errors(R, r.t, r.Y, watch, prob) if len(r.t) else dict(pos_abs=np.nan, pos_rel=np.nan,
                                                                      fn_abs=np.nan, fn_rel=np.nan, n=0)
         if not r.ok:
@@ -189,19 +191,7 @@ def run_scene(name, cfg: Config, build="build", log=print) -> SceneResult:
                     for fl in flags:
                         CFLAGS.remove(fl)
                 for tol in cfg.baseline_tols:
-                    r = run_fmu(base, prob, sched, q0, t_end, FMU_COMM, "rodas4", tol, 0.01, record=watch,
-                                record_every=OUT_DT, check_all=False)
-                    r.method = BASELINE_LABEL
-                    e = errors(R, r.t, r.Y, watch, prob) if len(r.t) else dict(pos_abs=np.nan, pos_rel=np.nan,
-                                                                                 fn_abs=np.nan, fn_rel=np.nan, n=0)
-                    if not r.ok:
-                        e = e | dict(pos_abs=np.inf, fn_abs=np.inf, pos_rel=np.inf, fn_rel=np.inf)
-                    row = _row(r, FMU_COMM, e)
-                    row["rejected"] = r.extra.get("rejected", -1)
-                    res.rows.append(row)
-                    log(f"  {r.method:12s} {r.setting:12s}: {r.wall:7.2f} s, steps {r.steps}, pos err "
-                        f"{e['pos_abs']:.2e} m, Fn err {e['fn_abs']:.2e} N" + ("" if r.ok else f"  [{r.status}: "
-                                                                               f"{r.message}]"))
+                    fmu("rodas4", tol, 0.01, FMU_COMM, fmu_file=base, label=BASELINE_LABEL)
         for h in cfg.rk4_steps:
             fmu("rk4", 1e-6, h, FMU_COMM)
         for method, (tol, h) in cfg.comm_settings.items():
