@@ -232,6 +232,12 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, bump2d_fmu):
         assert sw.run_id(p) in map_ids                      # the same run as the shipped map's
         verdicts[name] = table[sw.run_id(p)]["climbed"]
     assert verdicts == {"climbs": "1", "fails": "0", "edge": "1", "edge_above": "0"}
+    # the map of these runs: both verdicts' colours are in the picture
+    from PIL import Image
+    from cedra.run.sweep_map import draw
+    png = draw(sw, read_table(sw.table))
+    pixels = {tuple(c[:3]) for c in Image.open(png).convert("RGB").getdata()}
+    assert (0x5c, 0xb8, 0x5c) in pixels and (0xd9, 0x53, 0x4f) in pixels         # climbs (green), fails (red)
     # alone, through the main job's own loop (no early stop, the full 20 s): past the bump's end or not
     for name, p in points.items():
         names, rows, _, info = run_bump(bump2d_fmu, shipped.stop_time,

@@ -24,8 +24,8 @@ With both [grid] and [random], every grid point is combined with every draw. For
 scene FMU's inputs and parameters (mu, terrain_h, terrain_w, ground_k, start.yaw, ...) and the main job's
 controller settings (CONTROLLER: tau_max, v_ref); each run is the main job's run (spec section 10: a PI speed loop,
 equal torques clipped at tau_max) on that scene, summarized as OUTPUTS. For a scenario script, the parameters and
-outputs are its own PARAMETERS and SUMMARY, and each run is its run(params=...). A bad sweep file fails before any run (and before any build) naming the file,
-the key and the reason.
+outputs are its own PARAMETERS and SUMMARY, and each run is its run(params=...). A bad sweep file fails before
+any run (and before any build) naming the file, the key and the reason.
 
 Runs execute on Dask: a LocalCluster with one single-threaded worker process per core by default, or an existing
 cluster with --scheduler (the same code; the workers need this package installed, e.g. `pip install -e .` in a
@@ -37,6 +37,8 @@ the run times out, or its worker process dies) is recorded with its status and r
 """
 from __future__ import annotations
 
+import atexit
+import contextlib
 import csv
 import hashlib
 import itertools
@@ -311,9 +313,19 @@ def load(path) -> Sweep:
 _FMU_FILES: dict[str, str] = {}          # per worker process: sha of the FMU's bytes -> a file holding them
 
 
+def _remove_fmu_files():
+    for name in _FMU_FILES.values():
+        with contextlib.suppress(OSError):
+            os.remove(name)
+
+
 def _fmu_file(fmu_bytes: bytes) -> str:
+    """The FMU's bytes (sent once to each worker) as a file this worker process reuses for all its runs and
+    removes when it exits."""
     sha = hashlib.sha256(fmu_bytes).hexdigest()
     if sha not in _FMU_FILES or not os.path.exists(_FMU_FILES[sha]):
+        if not _FMU_FILES:
+            atexit.register(_remove_fmu_files)
         fd, name = tempfile.mkstemp(prefix=f"cedra-{sha[:12]}-", suffix=".fmu")
         with os.fdopen(fd, "wb") as fh:
             fh.write(fmu_bytes)
@@ -346,11 +358,12 @@ def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout
     values["solver.max_wall_time"] = timeout
     start = {n: float(fmu.vars[n].start) for n in ("terrain_x0", "terrain_w", "terrain_s") if fmu.has(n)}
     goal = obstacle_end(kind, {**start, **values})
-    wheels = [i for i in range(1, 7)]
+    wheels = list(range(1, 7))
     fn = [f"wheel[{i}].Fn" for i in wheels]
     ft = [f"wheel[{i}].{c}" for i in wheels for c in ("Fx", "Fy")]
     attitude = [n for n in ("body.pitch", "body.roll") if fmu.has(n)]
-    names = ["body.x", "body.vx"] + attitude + fn + ft + [f"wheel[{i}].slip" for i in wheels] + [f"wheel[{i}].cx" for i in wheels]
+    names = (["body.x", "body.vx"] + attitude + fn + ft + [f"wheel[{i}].slip" for i in wheels] +
+             [f"wheel[{i}].cx" for i in wheels])
     s = dict(peak_Fn=0.0, peak_ratio=0.0, max_slip=0.0, t_over=math.nan, climbed=0, final_x=math.nan, t_end=0.0,
              status="ok", reason="")
     try:

@@ -94,7 +94,8 @@ def draw(sw, rows: list[dict]) -> Path:
     handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in cmap.colors]
     fig.legend(handles, [f"{spec['verdict']}: no", f"{spec['verdict']}: yes", "run failed"], loc="lower center",
                ncol=3, fontsize=8)
-    fig.suptitle(spec.get("title", f"{sw.name}: {spec['verdict']} ({len(rows)} runs of {sw.target.kind} {sw.target.name})"),
+    default_title = f"{sw.name}: {spec['verdict']} ({len(rows)} runs of {sw.target.kind} {sw.target.name})"
+    fig.suptitle(spec.get("title", default_title),
                  x=0.02, ha="left", fontsize=11)
     fig.tight_layout(rect=(0, 0.06, 1, 0.93))
     out = sw.out / f"{sw.name}.png"
