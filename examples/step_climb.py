@@ -6,6 +6,7 @@ Both runs use the 2D plant over the paper's bump and the drive controller FMU (c
 speed loop with equal torques; ctrl.mode 1: Eq. 13 wheel rates with a PI loop per wheel). Writes
 out/step_climb/ (one CSV per run, compare.png: wheel slip, friction/normal ratios, torques) and prints slip,
 friction ratio and peak torque for each: the paper's motivation for traction control.
+Sweep it over bump height, friction and speed: examples/sweeps/step_climb.toml (`python -m cedra sweep step_climb`).
 """
 from __future__ import annotations
 
@@ -17,22 +18,35 @@ SPEED = 0.2                 # m/s
 STOP_TIME = 15.0
 STEP = 0.01
 MODES = {"equal torques": 0, "inverse kinematics": 1}
+FMUS = ("bump2d", "drive2d")       # the FMUs run() opens (a sweep builds them first)
+# what a sweep may vary: name -> (default, min, max, meaning); the bump is the plant's, so is mu
+PARAMETERS = {"speed_cmd": (SPEED, 0.05, 0.4, "m/s, commanded speed"),
+              "terrain_h": (0.14625, 0.0, 0.2, "m, bump height (the paper: 2.25 R_w)"),
+              "mu": (0.8, 0.05, 2.0, "friction coefficient of the ground")}
+# what a sweep may keep: run() returns {mode: {quantity: value}}; a sweep names them "<mode>.<quantity>"
+SUMMARY = {f"{mode}.{q}": f"{what} ({mode})" for mode in MODES for q, what in (
+    ("mean_slip", "m/s, mean |wheel slip|"), ("peak_friction_ratio", "largest |Fx|/Fn while Fn > 1 N"),
+    ("peak_torque", "N.m, largest |torque|"), ("peak_spin", "rad/s, largest |wheel rate|"),
+    ("x_end", "m, body.x at the end"))}
 WHEELS = (1, 2, 5, 6)       # in 2D wheels 3, 4 repeat 1, 2
 RECORD = (["body.x"] + [f"wheel[{i}].{q}" for i in WHEELS for q in ("slip", "Fn", "Fx", "omega")] +
           [f"tau[{i}]" for i in WHEELS])
 
 
-def run(out_dir="out/step_climb", build_dir="build", stop_time=None, quiet=False, watch=True) -> dict:
+def run(out_dir="out/step_climb", build_dir="build", stop_time=None, quiet=False, watch=True, params=None) -> dict:
+    """params: values of PARAMETERS (a sweep's run); the others keep their defaults."""
     from cedra.run.cosim import DriveLoop
-    from cedra.run.scenario import fmu, run_loop, watch_run, write_csv
+    from cedra.run.scenario import fmu, parameters, run_loop, watch_run, write_csv
     from cedra.run.watch import plus_watched
     stop_time = stop_time or STOP_TIME
+    p = parameters(PARAMETERS, params)
     out = Path(out_dir)
     runs, summary = {}, {}
     for label, mode in MODES.items():
-        loop = DriveLoop(fmu("bump2d", build_dir), fmu("drive2d", build_dir), controller_values={"ctrl.mode": mode})
-        r = run_loop(loop, f"step_climb ({label})", stop_time, STEP, lambda t: {"cmd.v": SPEED}, plus_watched(RECORD),
-                     quiet)
+        loop = DriveLoop(*(fmu(n, build_dir) for n in FMUS), plant_values={"terrain_h": p["terrain_h"], "mu": p["mu"]},
+                         controller_values={"ctrl.mode": mode})
+        r = run_loop(loop, f"step_climb ({label})", stop_time, STEP, lambda t: {"cmd.v": p["speed_cmd"]},
+                     plus_watched(RECORD), quiet)
         write_csv(out / f"{label.replace(' ', '_')}.csv", r.names, r.rows)
         # <label>_animation.gif, <label>_view.html
         watch_run(out, r.names, r.rows, fmu("bump2d", build_dir), f"step_climb ({label})", watch,
@@ -50,7 +64,8 @@ def run(out_dir="out/step_climb", build_dir="build", stop_time=None, quiet=False
     _plot(out, runs)
     if not quiet:
         for label, s in summary.items():
-            print(f"step_climb, {label}: mean |slip| {s['mean_slip']:.4f} m/s, |Fx|/Fn mean {s['mean_friction_ratio']:.3f}"
+            print(f"step_climb, {label}: mean |slip| {s['mean_slip']:.4f} m/s, |Fx|/Fn mean "
+                  f"{s['mean_friction_ratio']:.3f}"
                   f" peak {s['peak_friction_ratio']:.3f}, peak torque {s['peak_torque']:.2f} N.m, peak spin "
                   f"{s['peak_spin']:.1f} rad/s, body.x {s['x_end']:.3f} m")
         print(f"-> {out}")

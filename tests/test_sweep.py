@@ -75,6 +75,15 @@ def test_shipped_sweeps_load():
         assert len(sw.runs()) >= 200
         assert sw.fixed == {"tau_max": 4.0}
         assert max(sw.grid["terrain_h"]) == pytest.approx(3 * 0.065)
+    assert load(sw_mod.resolve("climb_step")).target.name == "step2d"
+    assert load(sw_mod.resolve("turn_flat")).target.kind == "scenario"
+    sc = load(sw_mod.resolve("step_climb"))
+    assert sc.target.kind == "scenario" and "inverse kinematics.mean_slip" in sc.outputs
+
+
+def test_nested_scenario_summaries_become_columns():
+    assert sw_mod._flat({"equal torques": {"mean_slip": 1.0, "x_end": 2.0}, "wall": 3.0}) == \
+        {"equal torques.mean_slip": 1.0, "equal torques.x_end": 2.0, "wall": 3.0}
 
 
 # ------------------------------------------------------------------ running on the local cluster

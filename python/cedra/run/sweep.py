@@ -413,6 +413,17 @@ def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout
     return s
 
 
+def _flat(summary: dict, prefix: str = "") -> dict:
+    """{"a": {"b": 1}} -> {"a.b": 1}: a scenario's nested summary (one per controller, say) as table columns."""
+    out = {}
+    for k, v in summary.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
 def run_scenario(name: str, build_dir: str, params: dict, stop_time: float, outputs: list) -> dict:
     """A scenario script's run() with these parameter values, in a scratch directory; its SUMMARY numbers."""
     from cedra.run.scenario import load as load_scenario
@@ -422,6 +433,7 @@ def run_scenario(name: str, build_dir: str, params: dict, stop_time: float, outp
         with tempfile.TemporaryDirectory(prefix=f"cedra-sweep-{name}-") as tmp:
             summary = load_scenario(name).run(out_dir=tmp, build_dir=build_dir, stop_time=stop_time, quiet=True,
                                               params=params, watch=False)
+        summary = _flat(summary)
         missing = [o for o in outputs if o not in summary]
         if missing:
             raise KeyError(f"run() returned no {', '.join(missing)}")
