@@ -504,7 +504,7 @@ def execute(sw: Sweep, build_dir="build", scheduler: str | None = None, workers:
         client = Client(scheduler)
     else:
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+                               dashboard_address=":0")   # the HTTP server on a free port: several may run
         client = Client(cluster)
     progress = Progress(len(todo), f"sweep {sw.name}", unit="runs", quiet=quiet, after=0.0)
     try:
