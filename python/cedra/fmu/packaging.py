@@ -121,8 +121,9 @@ def documentation(spec: ModelSpec) -> str:
 """
 
 
-def build_fmu(spec: ModelSpec, build_dir) -> Path:
-    """Generate, compile and package the FMU; returns <build_dir>/<spec.name>.fmu."""
+def build_fmu(spec: ModelSpec, build_dir, extra_cflags=()) -> Path:
+    """Generate, compile and package the FMU; returns <build_dir>/<spec.name>.fmu. extra_cflags go after CFLAGS
+    (e.g. the precision report's baseline build: -D switches of the plant's C)."""
     spec.check()
     build_dir = Path(build_dir).resolve()
     tree = build_dir / spec.name
@@ -148,7 +149,7 @@ def build_fmu(spec: ModelSpec, build_dir) -> Path:
     # compile
     objects = []
     for f in c_files:
-        flags = CFLAGS + (GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="] if f == GENERATED_C else [])
+        flags = CFLAGS + list(extra_cflags) + (GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="] if f == GENERATED_C else [])
         o = obj / (Path(f).stem + ".o")
         _run([CC, *flags, "-I", str(src), "-c", str(src / f), "-o", str(o)], cwd=tree)
         objects.append(str(o))

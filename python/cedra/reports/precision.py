@@ -181,15 +181,9 @@ def run_scene(name, cfg: Config, build="build", log=print) -> SceneResult:
             fmu("dopri5", tol, 0.01, FMU_COMM)
         if cfg.baseline_tols:
             import tempfile
-            from cedra.fmu.packaging import CFLAGS, build_fmu
-            flags = list(BASELINE_FLAGS)
+            from cedra.fmu.packaging import build_fmu
             with tempfile.TemporaryDirectory() as d:
-                CFLAGS.extend(flags)
-                try:
-                    base = build_fmu(scene.spec(), d)
-                finally:
-                    for fl in flags:
-                        CFLAGS.remove(fl)
+                base = build_fmu(scene.spec(), d, extra_cflags=BASELINE_FLAGS)
                 for tol in cfg.baseline_tols:
                     fmu("rodas4", tol, 0.01, FMU_COMM, fmu_file=base, label=BASELINE_LABEL)
         for h in cfg.rk4_steps:
