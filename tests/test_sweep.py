@@ -245,7 +245,7 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, bump2d_fmu):
     from PIL import Image
     from cedra.run.sweep_map import draw
     png = draw(sw, read_table(sw.table))
-    pixels = {tuple(c[:3]) for c in Image.open(png).convert("RGB").getdata()}
+    pixels = {rgb for _, rgb in Image.open(png).convert("RGB").getcolors(1 << 24)}
     assert (0x5c, 0xb8, 0x5c) in pixels and (0xd9, 0x53, 0x4f) in pixels         # climbs (green), fails (red)
     # alone, through the main job's own loop (no early stop, the full 20 s): past the bump's end or not
     for name, p in points.items():
