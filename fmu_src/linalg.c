@@ -63,3 +63,36 @@ void linalg_lu_solve(int n, const double *lu, const int *piv, double *b) {
         for (int i = 0; i < j; i++) b[i] -= c[i] * bj;
     }
 }
+
+int linalg_chol_factor(int n, double *a) {
+    /* Right-looking, column by column: column k of L, then the trailing lower triangle updated by it. */
+    for (int k = 0; k < n; k++) {
+        double *colk = a + (size_t)k * n;
+        double d = colk[k];
+        if (!(d > 0.0) || !isfinite(d)) return 1;      /* not positive definite (or NaN): the caller falls back */
+        d = sqrt(d);
+        colk[k] = d;
+        double inv = 1.0 / d;
+        for (int i = k + 1; i < n; i++) colk[i] *= inv;
+        for (int j = k + 1; j < n; j++) {
+            double *c = a + (size_t)j * n, ljk = colk[j];
+            for (int i = j; i < n; i++) c[i] -= colk[i] * ljk;
+        }
+    }
+    return 0;
+}
+
+void linalg_chol_solve(int n, const double *l, double *b) {
+    for (int j = 0; j < n; j++) {                      /* L y = b */
+        const double *c = l + (size_t)j * n;
+        double bj = b[j] / c[j];
+        b[j] = bj;
+        for (int i = j + 1; i < n; i++) b[i] -= c[i] * bj;
+    }
+    for (int j = n - 1; j >= 0; j--) {                 /* L^T x = y */
+        const double *c = l + (size_t)j * n;
+        double acc = b[j];
+        for (int i = j + 1; i < n; i++) acc -= c[i] * b[i];
+        b[j] = acc / c[j];
+    }
+}

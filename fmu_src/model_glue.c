@@ -55,6 +55,16 @@
 #define NC 1
 #endif
 
+/* x = [q, u, z] with q' = u: RODAS4's stage systems reduce to NQ x NQ (solver.c); -DCEDRA_SCHUR_N2=0 builds the
+ * dense NX x NX solve (the benchmark's comparison) */
+#ifndef CEDRA_SCHUR_N2
+#define CEDRA_SCHUR_N2 NQ
+#endif
+/* The Jacobian's u rows as -dr/dq, -dr/du (r = M u' - f) with M beside them (solver.h mass_rows): the solver's
+ * reduced stage matrix is then c^2 M + c dr/du + dr/dq, and the 2 NQ solves with M that A = -M^-1 dr/dq and
+ * B = -M^-1 dr/du cost are not needed. The rigid model's Jacobian is a difference quotient of F: no rows to give. */
+#define MASS_ROWS (CEDRA_SCHUR_N2 > 0 && !CEDRA_RIGID)
+
 #define SETTLE_MAX_ITER 60
 #define SETTLE_MAX_HALVINGS 30
 #define SETTLE_RTOL 1e-10
@@ -76,8 +86,14 @@ struct model_ws {
     int sw_count[DIM(NSW)];             /* times each switch was located since then */
     int loc_which[LOG_LOCATED];
     double loc_t0[LOG_LOCATED], loc_t1[LOG_LOCATED];
-    double M[NQ * NQ];
+    double M[NQ * NQ];                  /* factors of the mass matrix at dyn_x: Cholesky if m_chol, else LU */
+    int m_chol;
+    double Mfull[NQ * NQ];              /* the mass matrix itself there */
     int piv[NQ];
+    /* M, f and g are those of dyn_x (2 NQ) when dyn_valid: RODAS4 asks for F and then the Jacobian at the same
+     * state, and both need them; cleared by model_bind (the inputs may have changed) and by any other use */
+    double dyn_x[2 * NQ];
+    int dyn_valid;
     double f[NQ], g[DIM(NZ)];
     double drdq[NQ * NQ], drdu[NQ * NQ], dgdq[DIM(NZ * NQ)], dgdu[DIM(NZ * NQ)];
     double col[NQ];
@@ -108,7 +124,13 @@ static int find_var(const char *name, int kind) {
 }
 #endif
 
+const solver_structure *model_structure(void) {
+    static const solver_structure structure = {CEDRA_SCHUR_N2, MASS_ROWS, 1};
+    return &structure;
+}
+
 void model_bind(model_ws *ws, const double *inp, const double *par) {
+    ws->dyn_valid = 0;
     ws->inp = inp;
     ws->par = par;
     ws->sw_valid = 0;       /* s at a step's start depends on the inputs: evaluate it again */
@@ -186,6 +208,7 @@ int model_check(model_ws *ws, const double *q, const double *u) {
 
 /* M at q into M, f and g at (q, u); the arguments stay set to (q, u, inp, par) for a following call */
 static int eval_M_f(model_ws *ws, const double *q, const double *u, double t, double *M) {
+    ws->dyn_valid = 0;     /* ws->f and g are about to change */
     ws->arg[0] = q;
     ws->arg[1] = ws->par;
     ws->res[0] = M;
@@ -206,13 +229,34 @@ static int eval_M_f(model_ws *ws, const double *q, const double *u, double t, do
     return 0;
 }
 
-/* M and its LU factors at q, f and g at (q, u) */
+/* b := M^-1 b with the factors of eval_dynamics */
+static void mass_solve(const model_ws *ws, double *b) {
+    if (ws->m_chol)
+        linalg_chol_solve(NQ, ws->M, b);
+    else
+        linalg_lu_solve(NQ, ws->M, ws->piv, b);
+}
+
+/* M and its factors at q, f and g at (q, u) */
 static int eval_dynamics(model_ws *ws, const double *q, const double *u, double t) {
-    if (eval_M_f(ws, q, u, t, ws->M)) return 1;
-    if (linalg_lu_factor(NQ, ws->M, ws->piv)) {
-        snprintf(ws->msg, sizeof ws->msg, "the mass matrix is singular or not finite at t=%.17g", t);
-        return 1;
+    if (ws->dyn_valid && memcmp(ws->dyn_x, q, sizeof(double) * NQ) == 0 &&
+        memcmp(ws->dyn_x + NQ, u, sizeof(double) * NQ) == 0)
+        return 0;
+    if (eval_M_f(ws, q, u, t, ws->Mfull)) return 1;
+    /* Cholesky (M is symmetric positive definite for any assembly of the mechanism); LU with pivoting where
+     * rounding makes it fail to be (then the LU's own test decides whether M can be solved at all) */
+    memcpy(ws->M, ws->Mfull, sizeof ws->M);
+    ws->m_chol = !linalg_chol_factor(NQ, ws->M);
+    if (!ws->m_chol) {
+        memcpy(ws->M, ws->Mfull, sizeof ws->M);
+        if (linalg_lu_factor(NQ, ws->M, ws->piv)) {
+            snprintf(ws->msg, sizeof ws->msg, "the mass matrix is singular or not finite at t=%.17g", t);
+            return 1;
+        }
     }
+    memcpy(ws->dyn_x, q, sizeof(double) * NQ);
+    memcpy(ws->dyn_x + NQ, u, sizeof(double) * NQ);
+    ws->dyn_valid = 1;
     return 0;
 }
 
@@ -470,7 +514,7 @@ int model_rhs(void *ctx, double t, const double *x, double *xdot) {
     if (eval_dynamics(ws, q, u, t)) return 1;
     memcpy(xdot, u, sizeof(double) * NQ);
     memcpy(xdot + NQ, ws->f, sizeof(double) * NQ);
-    linalg_lu_solve(NQ, ws->M, ws->piv, xdot + NQ);
+    mass_solve(ws, xdot + NQ);
 #endif
     if (NZ > 0) memcpy(xdot + 2 * NQ, ws->g, sizeof(double) * NZ);
     if (!all_finite(xdot, NX)) {
@@ -520,13 +564,14 @@ int model_jac(void *ctx, double t, const double *x, const double *xdot, double *
         for (int blk = 0; blk < 2; blk++) {                          /* column j of q, then of u */
             const double *dr = blk ? ws->drdu : ws->drdq;
             for (int i = 0; i < NQ; i++) ws->col[i] = -dr[i + (size_t)j * NQ];
-            linalg_lu_solve(NQ, ws->M, ws->piv, ws->col);
+            if (!MASS_ROWS) mass_solve(ws, ws->col);
             int cj = blk * NQ + j;
             for (int i = 0; i < NQ; i++) jac[NQ + i + (size_t)cj * NX] = ws->col[i];
             for (int i = 0; i < NZ; i++)
                 jac[2 * NQ + i + (size_t)cj * NX] = (blk ? ws->dgdu : ws->dgdq)[i + (size_t)j * NZ];
         }
     }
+    if (MASS_ROWS) memcpy(jac + (size_t)NX * NX, ws->Mfull, sizeof ws->Mfull);   /* solver.h: M at jac + n n */
     if (!all_finite(jac, NX * NX)) {
         snprintf(ws->msg, sizeof ws->msg, "the Jacobian is not finite at t=%.17g", t);
         return 1;

@@ -5,6 +5,8 @@
 
 #include <stddef.h>
 
+#include "solver.h"
+
 typedef struct model_ws model_ws;
 
 /* bytes of one workspace (the caller allocates it zeroed, e.g. with fmi2's allocateMemory) */
@@ -16,6 +18,12 @@ void model_bind_terrain(model_ws *ws, void *terrain);
 /* the reason of the last failure (a finished sentence, no trailing newline) */
 const char *model_message(const model_ws *ws);
 void model_clear_message(model_ws *ws);
+
+/* what the solvers may assume of model_rhs and model_jac (solver.h): x = [q, u, z] with q' = u (RODAS4's stage
+ * systems reduce to NQ x NQ; a build with -DCEDRA_SCHUR_N2=0 gets the dense NX x NX solve, the benchmark's
+ * comparison), the u rows of the Jacobian given as -dr/dq, -dr/du with the mass matrix (compliant models), and no
+ * explicit time dependence (inputs are held over a communication step) */
+const solver_structure *model_structure(void);
 
 /* solver callbacks (solver.h): ctx is the model_ws */
 int model_rhs(void *ctx, double t, const double *x, double *xdot);

@@ -14,11 +14,6 @@
 #define NX CEDRA_NX
 /* Switch location (issue 13 item 3): steps are cut at the model's force-law switches (cedra_switch). A build with
  * -DCEDRA_LOCATE_FN=NULL integrates across them (error control only), for comparisons. */
-/* x = [q, u, z] with q' = u: RODAS4's stage systems reduce to NQ x NQ (solver.c); -DCEDRA_SCHUR_N2=0 builds the
- * dense NX x NX solve (the benchmark's comparison) */
-#ifndef CEDRA_SCHUR_N2
-#define CEDRA_SCHUR_N2 NQ
-#endif
 #ifndef CEDRA_LOCATE_FN
 #define CEDRA_LOCATE_FN model_locate_step
 #endif
@@ -255,7 +250,7 @@ fmi2Status block_step(instance *c, double t, double h) {
     model_take_located(ws, -1, NULL, NULL, NULL);
     int failed = solver_integrate_post(&b->solver, NX, b->x, t, t + h, model_rhs, model_jac, model_accept_step,
                                        CEDRA_LOCATE_FN, model_post_step, ws, c->ws->work, &b->stats, solver_msg,
-                                       sizeof solver_msg, CEDRA_SCHUR_N2);
+                                       sizeof solver_msg, model_structure());
     long located = model_take_located(ws, 0, NULL, NULL, NULL);
     for (long k = 0; k < located && k < 8; k++) {   /* the most recent ones */
         const char *name = "";

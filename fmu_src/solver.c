@@ -96,7 +96,7 @@ size_t solver_workspace_size(int method, int n) {
     switch (method) {
     case SOLVER_RK4: return 5 * N;                   /* k1..k4, stage state */
     case SOLVER_DOPRI5: return 9 * N;                /* k1..k7, stage state (then error), xnew */
-    case SOLVER_RODAS4: return 10 * N + 2 * N * N;   /* f0, f_t, k1..k6, stage state, stage F; J, W */
+    case SOLVER_RODAS4: return 10 * N + 3 * N * N;   /* f0, f_t, k1..k6, stage state, stage F; J, M, W */
     default: return 0;
     }
 }
@@ -229,27 +229,31 @@ static const double ro_c61 = 0.8083246795921522e+01, ro_c62 = -0.798113298806489
  *   c kq - ku = rq,   -A kq + (c - B) ku = ru,   -C kq - D ku + c kz = rz,
  * so kq = (rq + ku)/c and the u rows become the n2 x n2 system S ku = c ru + A rq with S = c^2 I - c B - A (the
  * Schur complement of the q block), then kz = (rz + C kq + D ku)/c. One LU of n2 x n2 instead of n x n (2D rover:
- * 9 instead of 19, 3D: 15 instead of 31), and the solves shrink likewise. */
+ * 9 instead of 19, 3D: 15 instead of 31), and the solves shrink likewise. With mass rows (solver_structure) the u
+ * rows hold M A and M B, and the system is solved as (M S) ku = c M ru + (M A) rq. */
 size_t solver_stage_work_size(int n, int n2) {
     return n2 > 0 ? (size_t)n2 * (size_t)n2 + (size_t)n : (size_t)n * (size_t)n;
 }
 
-int solver_stage_factor(int n, int n2, double fac, const double *J, double *work, int *piv) {
+int solver_stage_factor(int n, int n2, double fac, const double *J, const double *M, double *work, int *piv) {
     if (n2 <= 0) {
         for (size_t k = 0; k < (size_t)n * n; k++) work[k] = -J[k];
         for (int i = 0; i < n; i++) work[i + (size_t)i * n] += fac;
         return linalg_lu_factor(n, work, piv);
     }
+    /* S = c^2 I - c B - A, or with mass rows M S = c^2 M - c (M B) - (M A) from the rows as given */
     double *S = work;
     for (int j = 0; j < n2; j++)
         for (int i = 0; i < n2; i++) {
             double a = J[(size_t)(n2 + i) + (size_t)j * n], b = J[(size_t)(n2 + i) + (size_t)(n2 + j) * n];
-            S[i + (size_t)j * n2] = -fac * b - a + (i == j ? fac * fac : 0.0);
+            double m = M ? M[i + (size_t)j * n2] : (i == j ? 1.0 : 0.0);
+            S[i + (size_t)j * n2] = -fac * b - a + fac * fac * m;
         }
     return linalg_lu_factor(n2, S, piv);
 }
 
-void solver_stage_solve(int n, int n2, double fac, const double *J, double *work, const int *piv, double *r) {
+void solver_stage_solve(int n, int n2, double fac, const double *J, const double *M, double *work, const int *piv,
+                        double *r) {
     if (n2 <= 0) {
         linalg_lu_solve(n, work, piv, r);
         return;
@@ -257,8 +261,17 @@ void solver_stage_solve(int n, int n2, double fac, const double *J, double *work
     const double *S = work;
     double *rq = r, *ru = r + n2, *rz = r + 2 * n2, *t = work + (size_t)n2 * n2;
     const int nz = n - 2 * n2;
-    for (int i = 0; i < n2; i++) t[i] = fac * ru[i];
-    for (int j = 0; j < n2; j++) {                                  /* + A rq, column by column */
+    if (M) {                                                        /* c M ru */
+        for (int i = 0; i < n2; i++) t[i] = 0.0;
+        for (int j = 0; j < n2; j++) {
+            const double *col = M + (size_t)j * n2;
+            double rj = fac * ru[j];
+            for (int i = 0; i < n2; i++) t[i] += col[i] * rj;
+        }
+    } else {
+        for (int i = 0; i < n2; i++) t[i] = fac * ru[i];
+    }
+    for (int j = 0; j < n2; j++) {                                  /* + A rq (M A with mass rows), column by column */
         const double *col = J + (size_t)j * n + n2;
         double rj = rq[j];
         if (rj == 0.0) continue;
@@ -285,7 +298,8 @@ void solver_stage_solve(int n, int n2, double fac, const double *J, double *work
 #define RO_Y(w, n) ((w) + 8 * (size_t)(n))
 #define RO_XNEW(w, n) ((w) + 9 * (size_t)(n))
 #define RO_J(w, n) ((w) + 10 * (size_t)(n))
-#define RO_W(w, n) ((w) + 10 * (size_t)(n) + (size_t)(n) * (n))
+#define RO_M(w, n) ((w) + 10 * (size_t)(n) + (size_t)(n) * (n))
+#define RO_W(w, n) ((w) + 10 * (size_t)(n) + 2 * (size_t)(n) * (n))
 
 /* Data at the start of a RODAS4 step: F, the Jacobian and F_t at (t, x); kept when a step is rejected (a retry
  * from the same point, whatever its h, refactors only the n2 x n2 stage matrix: the Jacobian is reused).
@@ -296,14 +310,19 @@ void solver_stage_solve(int n, int n2, double fac, const double *J, double *work
  * (cedra_rjac plus 2 nq solves with M; bump2d: ~9 us + the solves) costs about two right-hand sides (~7 us each)
  * of the ~8 a step evaluates (6 stages, F and dF/dt at the start), so the saving is bounded by ~20 % of a step
  * while a lower-order method needs more steps at the tolerances the report measures (1e-6 and tighter). The measured costs are in `python -m cedra bench --step-cost`. */
-static int rodas4_start(int n, const double *x, double t, double tmax, solver_rhs_fn rhs, solver_jac_fn jac,
-                        void *ctx, double *w, solver_stats *st) {
+static int rodas4_start(int n, const solver_structure *sp, const double *x, double t, double tmax,
+                        solver_rhs_fn rhs, solver_jac_fn jac, void *ctx, double *w, solver_stats *st) {
     double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *tmp = RO_XNEW(w, n), *J = RO_J(w, n);
     int ev;
     if ((ev = eval(rhs, ctx, t, x, f0, n, st))) return ev;
     st->jac_evals++;
     if (jac(ctx, t, x, f0, J)) return EV_JAC_FAILED;
     if (!all_finite(n * n, J)) return EV_JAC_NONFINITE;
+    if (sp->mass_rows && !all_finite(sp->n2 * sp->n2, RO_M(w, n))) return EV_JAC_NONFINITE;
+    if (sp->autonomous) {
+        for (int i = 0; i < n; i++) ft[i] = 0.0;
+        return EV_OK;
+    }
     /* dF/dt by a forward difference, as rodas.f does for a non-autonomous F without DFX (IDFX=0), at the price
      * of one F per step: without the d_i terms the method drops to order 1 in an explicit time dependence. For
      * an autonomous F the difference is exactly 0. Backward if t + delta would pass t1, where inputs end. */
@@ -314,49 +333,51 @@ static int rodas4_start(int n, const double *x, double t, double tmax, solver_rh
     return EV_OK;
 }
 
-static int rodas4_step(int n, int n2, const double *x, double t, double h, double tend, solver_rhs_fn rhs,
+static int rodas4_step(int n, const solver_structure *sp, const double *x, double t, double h, double tend, solver_rhs_fn rhs,
                        void *ctx, double *w, solver_stats *st) {
     double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *k1 = RO_K(w, n, 1), *k2 = RO_K(w, n, 2), *k3 = RO_K(w, n, 3),
            *k4 = RO_K(w, n, 4), *k5 = RO_K(w, n, 5), *k6 = RO_K(w, n, 6), *y = RO_Y(w, n), *dy = RO_XNEW(w, n),
            *J = RO_J(w, n), *W = RO_W(w, n);
+    const int n2 = sp->n2;
+    const double *M = sp->mass_rows ? RO_M(w, n) : NULL;
     int piv[n];   /* VLA: work holds doubles only, and n is a few dozen at most */
     int ev;
     /* W = I/(h*gamma) - J, factored once (reduced to n2 x n2 with the second-order structure) for all six stages */
     const double fac = 1.0 / (h * ro_gamma);
-    if (solver_stage_factor(n, n2, fac, J, W, piv)) return EV_SINGULAR;
+    if (solver_stage_factor(n, n2, fac, J, M, W, piv)) return EV_SINGULAR;
 
     for (int i = 0; i < n; i++) k1[i] = f0[i] + h * ro_d1 * ft[i];
-    solver_stage_solve(n, n2, fac, J, W, piv, k1);
+    solver_stage_solve(n, n2, fac, J, M, W, piv, k1);
 
     for (int i = 0; i < n; i++) y[i] = x[i] + ro_a21 * k1[i];
     if ((ev = eval(rhs, ctx, t + ro_c2 * h, y, dy, n, st))) return ev;
     for (int i = 0; i < n; i++) k2[i] = dy[i] + h * ro_d2 * ft[i] + ro_c21 * k1[i] / h;
-    solver_stage_solve(n, n2, fac, J, W, piv, k2);
+    solver_stage_solve(n, n2, fac, J, M, W, piv, k2);
 
     for (int i = 0; i < n; i++) y[i] = x[i] + ro_a31 * k1[i] + ro_a32 * k2[i];
     if ((ev = eval(rhs, ctx, t + ro_c3 * h, y, dy, n, st))) return ev;
     for (int i = 0; i < n; i++) k3[i] = dy[i] + h * ro_d3 * ft[i] + (ro_c31 * k1[i] + ro_c32 * k2[i]) / h;
-    solver_stage_solve(n, n2, fac, J, W, piv, k3);
+    solver_stage_solve(n, n2, fac, J, M, W, piv, k3);
 
     for (int i = 0; i < n; i++) y[i] = x[i] + ro_a41 * k1[i] + ro_a42 * k2[i] + ro_a43 * k3[i];
     if ((ev = eval(rhs, ctx, t + ro_c4 * h, y, dy, n, st))) return ev;
     for (int i = 0; i < n; i++)
         k4[i] = dy[i] + h * ro_d4 * ft[i] + (ro_c41 * k1[i] + ro_c42 * k2[i] + ro_c43 * k3[i]) / h;
-    solver_stage_solve(n, n2, fac, J, W, piv, k4);
+    solver_stage_solve(n, n2, fac, J, M, W, piv, k4);
 
     /* stages 5 and 6 sit at t+h with d5 = d6 = 0 (rodas.f passes HD = 0) */
     for (int i = 0; i < n; i++) y[i] = x[i] + ro_a51 * k1[i] + ro_a52 * k2[i] + ro_a53 * k3[i] + ro_a54 * k4[i];
     if ((ev = eval(rhs, ctx, tend, y, dy, n, st))) return ev;
     for (int i = 0; i < n; i++)
         k5[i] = dy[i] + (ro_c51 * k1[i] + ro_c52 * k2[i] + ro_c53 * k3[i] + ro_c54 * k4[i]) / h;
-    solver_stage_solve(n, n2, fac, J, W, piv, k5);
+    solver_stage_solve(n, n2, fac, J, M, W, piv, k5);
 
     for (int i = 0; i < n; i++) y[i] += k5[i];   /* the embedded order-3 solution */
     if (!all_finite(n, y)) return EV_NONFINITE;
     if ((ev = eval(rhs, ctx, tend, y, dy, n, st))) return ev;
     for (int i = 0; i < n; i++)
         k6[i] = dy[i] + (ro_c61 * k1[i] + ro_c62 * k2[i] + ro_c63 * k3[i] + ro_c64 * k4[i] + ro_c65 * k5[i]) / h;
-    solver_stage_solve(n, n2, fac, J, W, piv, k6);
+    solver_stage_solve(n, n2, fac, J, M, W, piv, k6);
 
     for (int i = 0; i < n; i++) dy[i] = y[i] + k6[i];   /* dy becomes xnew */
     return all_finite(n, dy) ? EV_OK : EV_NONFINITE;
@@ -381,7 +402,7 @@ static double initial_step(int n, const double *x, double t, const double *f0, d
     return fmin(fmin(100 * h, h1), hmax);
 }
 
-static int adaptive(const solver_settings *s, int n, int n2, double *x, double t0, double t1, solver_rhs_fn rhs,
+static int adaptive(const solver_settings *s, int n, const solver_structure *sp, double *x, double t0, double t1, solver_rhs_fn rhs,
                     solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate, solver_post_fn post,
                     void *ctx, double *w, solver_stats *st, char *msg, size_t msg_len) {
     const int dopri = s->method == SOLVER_DOPRI5;
@@ -414,7 +435,7 @@ static int adaptive(const solver_settings *s, int n, int n2, double *x, double t
     if (st->h_next > 0 && isfinite(st->h_next)) {
         h = fmin(st->h_next, hmax);
     } else {
-        int ev = dopri ? eval(rhs, ctx, t, x, f0, n, st) : rodas4_start(n, x, t, t1, rhs, jac, ctx, w, st);
+        int ev = dopri ? eval(rhs, ctx, t, x, f0, n, st) : rodas4_start(n, sp, x, t, t1, rhs, jac, ctx, w, st);
         have_start = ev == EV_OK;
         /* scratch for the probe: k4, k5 (DOPRI5) or k2, k3 (RODAS4) - never f0, f_t, J */
         h = have_start ? initial_step(n, x, t, f0, tol, hmax, t1 - t, dopri ? 5 : 4, rhs, ctx, w + 3 * (size_t)n,
@@ -449,12 +470,12 @@ static int adaptive(const solver_settings *s, int n, int n2, double *x, double t
 
         ev = EV_OK;
         if (!have_start) {
-            ev = dopri ? eval(rhs, ctx, t, x, f0, n, st) : rodas4_start(n, x, t, t1, rhs, jac, ctx, w, st);
+            ev = dopri ? eval(rhs, ctx, t, x, f0, n, st) : rodas4_start(n, sp, x, t, t1, rhs, jac, ctx, w, st);
             have_start = ev == EV_OK;
         }
         if (ev == EV_OK)
             ev = dopri ? dopri5_step(n, x, t, hs, tend, rhs, ctx, w, st)
-                       : rodas4_step(n, n2, x, t, hs, tend, rhs, ctx, w, st);
+                       : rodas4_step(n, sp, x, t, hs, tend, rhs, ctx, w, st);
         double err = ev == EV_OK ? err_norm(n, tol, errv, x, xnew) : 0.0;
         if (ev == EV_OK && isnan(err)) ev = EV_NONFINITE;
 
@@ -597,7 +618,7 @@ underflow:
 
 int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
                      solver_jac_fn jac, void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len) {
-    return solver_integrate_post(s, n, x, t0, t1, rhs, jac, NULL, NULL, NULL, ctx, work, stats, msg, msg_len, 0);
+    return solver_integrate_post(s, n, x, t0, t1, rhs, jac, NULL, NULL, NULL, ctx, work, stats, msg, msg_len, NULL);
 }
 
 double solver_locate_switches(int nsw, const double *s0, const double *s1, double t, double t_new, double loc_tol,
@@ -663,7 +684,8 @@ int solver_check(const solver_settings *s, double t0, double t1, char *msg, size
 
 int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
                           solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate, solver_post_fn post,
-                          void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len, int n2) {
+                          void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len,
+                          const solver_structure *structure) {
     if (solver_check(s, t0, t1, msg, msg_len)) return 1;
     if (s->method == SOLVER_RODAS4 && !jac) {
         put_msg(msg, msg_len, "rodas4: no Jacobian function");
@@ -671,6 +693,19 @@ int solver_integrate_post(const solver_settings *s, int n, double *x, double t0,
     }
     if (n <= 0 || t1 == t0) return 0;   /* nothing to integrate */
     if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, post, ctx, work, stats, msg, msg_len);
-    if (n2 < 0 || 2 * n2 > n) n2 = 0;
-    return adaptive(s, n, n2, x, t0, t1, rhs, jac, accept, locate, post, ctx, work, stats, msg, msg_len);
+    solver_structure sp = {0, 0, 0};
+    if (structure) sp = *structure;
+    if (sp.n2 < 0 || 2 * sp.n2 > n) {
+        /* rows premultiplied by M cannot be read without the structure they belong to */
+        if (sp.mass_rows) {
+            put_msg(msg, msg_len, "rodas4: mass rows without a second-order structure (n2 = %d, n = %d)", sp.n2, n);
+            return 1;
+        }
+        sp.n2 = 0;   /* not a structure x can have: none */
+    }
+    if (sp.n2 == 0 && sp.mass_rows) {
+        put_msg(msg, msg_len, "rodas4: mass rows without a second-order structure (n2 = 0)");
+        return 1;
+    }
+    return adaptive(s, n, &sp, x, t0, t1, rhs, jac, accept, locate, post, ctx, work, stats, msg, msg_len);
 }

@@ -75,21 +75,37 @@ size_t solver_workspace_size(int method, int n);
 int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1,
                      solver_rhs_fn rhs, solver_jac_fn jac, void *ctx,
                      double *work, solver_stats *stats, char *msg, size_t msg_len);
-/* the same, with a step-acceptance, a switch-location and a post-step callback (each NULL: none), and the
- * second-order structure of x (n2 > 0: x = [q (n2), u (n2), z (n - 2 n2)] with q' = u exactly and F independent of
- * z, so the Jacobian is [[0, I, 0], [A, B, 0], [C, D, 0]]; RODAS4 then solves its stage systems with an n2 x n2
- * Schur complement instead of the n x n matrix; n2 = 0: no structure known) */
+/* What a model tells the solvers about F (all 0: nothing known). */
+typedef struct {
+    /* n2 > 0: x = [q (n2), u (n2), z (n - 2 n2)] with q' = u exactly and F independent of z, so the Jacobian is
+     * [[0, I, 0], [A, B, 0], [C, D, 0]]; RODAS4 then solves its stage systems with an n2 x n2 Schur complement
+     * instead of the n x n matrix */
+    int n2;
+    /* (n2 > 0 only) the Jacobian callback writes the u rows premultiplied by a nonsingular n2 x n2 matrix M: M A and
+     * M B in place of A and B, and M itself (column-major) at jac + n * n. A model M(q) u' = f(q, u) hands over
+     * -dr/dq and -dr/du (r = M u' - f) and its mass matrix, without the 2 n2 solves with M that A and B would cost;
+     * the stage solves multiply by M instead (one matrix-vector product each). */
+    int mass_rows;
+    /* F does not depend on t explicitly (an FMU's inputs are held over a step): dF/dt = 0 exactly, so RODAS4 does
+     * not spend an evaluation of F per step on its forward difference */
+    int autonomous;
+} solver_structure;
+
+/* the same, with a step-acceptance, a switch-location and a post-step callback (each NULL: none), and what is known
+ * of F's structure (NULL: nothing) */
 int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1,
                           solver_rhs_fn rhs, solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate,
                           solver_post_fn post, void *ctx, double *work, solver_stats *stats, char *msg,
-                          size_t msg_len, int n2);
+                          size_t msg_len, const solver_structure *structure);
 
 /* The RODAS4 stage system (I/(h gamma) - J) k = r with fac = 1/(h gamma), for the structure of
- * solver_integrate_post (n2 > 0; n2 = 0: the dense n x n solve). work: solver_stage_work_size(n, n2) doubles,
- * piv: n ints. Factor once (returns 1 if singular), then solve any number of right-hand sides in place.
- * Exposed for the tests (the reduced solve equals the full one). */
+ * solver_integrate_post (n2 > 0; n2 = 0: the dense n x n solve). M: NULL, or (n2 > 0) the mass_rows matrix, the
+ * u rows of J then being M times the Jacobian's. work: solver_stage_work_size(n, n2) doubles, piv: n ints. Factor
+ * once (returns 1 if singular), then solve any number of right-hand sides in place. Exposed for the tests (the
+ * reduced solve equals the full one). */
 size_t solver_stage_work_size(int n, int n2);
-int solver_stage_factor(int n, int n2, double fac, const double *J, double *work, int *piv);
-void solver_stage_solve(int n, int n2, double fac, const double *J, double *work, const int *piv, double *r);
+int solver_stage_factor(int n, int n2, double fac, const double *J, const double *M, double *work, int *piv);
+void solver_stage_solve(int n, int n2, double fac, const double *J, const double *M, double *work, const int *piv,
+                        double *r);
 
 #endif

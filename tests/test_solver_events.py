@@ -19,7 +19,7 @@ _D = ctypes.POINTER(ctypes.c_double)
 def lib(tmp_path_factory):
     so = compile_harness(tmp_path_factory.mktemp("solver_events"))
     so.harness_stage_solve.restype = ctypes.c_int
-    so.harness_stage_solve.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_double, _D, _D, _D, _D]
+    so.harness_stage_solve.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_double, _D, _D, _D, _D, _D, _D]
     so.harness_ball.restype = ctypes.c_int
     so.harness_ball.argtypes = [ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_double,
                                 ctypes.c_int, ctypes.c_int, _D, ctypes.c_char_p, ctypes.c_int]
@@ -30,8 +30,11 @@ def _p(a):
     return a.ctypes.data_as(_D)
 
 
+@pytest.mark.parametrize("mass_rows", [False, True], ids=["A,B rows", "mass rows"])
 @pytest.mark.parametrize("scene", ["bump2d", "flat3d"])
-def test_reduced_stage_solve_equals_full_solve(lib, scene):
+def test_reduced_stage_solve_equals_full_solve(lib, scene, mass_rows):
+    """mass rows: the reduced solve is handed what the FMU's Jacobian callback gives (solver.h mass_rows), the u rows
+    as M A, M B with the rover's own mass matrix M at the state, and must still solve the true Jacobian's system."""
     from cedra.reports.common import Problem
     from cedra.models.scene import load_shipped
     prob = Problem(load_shipped(scene))
@@ -49,8 +52,16 @@ def test_reduced_stage_solve_equals_full_solve(lib, scene):
             fac = 1.0 / (h * 0.25)        # RODAS4's gamma
             b = rng.normal(0, 1, n)
             full, red = np.empty(n), np.empty(n)
-            Jc = np.asfortranarray(J)
-            rc = lib.harness_stage_solve(n, nq, fac, _p(Jc.ravel(order="F")), _p(b), _p(full), _p(red))
+            Jc = np.asfortranarray(J).ravel(order="F")
+            if mass_rows:
+                M = np.array(prob.fns["cedra_M"](x[:nq], prob.par))
+                Jm = J.copy()
+                Jm[nq:2 * nq, :] = M @ J[nq:2 * nq, :]
+                Jm, Mf = np.asfortranarray(Jm).ravel(order="F"), np.asfortranarray(M).ravel(order="F")
+                Mp = _p(Mf)              # (Mf keeps the buffer alive through the call)
+            else:
+                Jm, Mp = Jc, None
+            rc = lib.harness_stage_solve(n, nq, fac, _p(Jc), _p(Jm), Mp, _p(b), _p(full), _p(red))
             assert rc == 0
             ref = np.linalg.solve(fac * np.eye(n) - J, b)
             err = np.max(np.abs(red - full)) / np.max(np.abs(full))

@@ -30,6 +30,8 @@ def lib(tmp_path_factory):
                                ctypes.c_char_p, ctypes.c_int]
     so.harness_lu_solve.restype = ctypes.c_int
     so.harness_lu_solve.argtypes = [ctypes.c_int, _D, _D]
+    so.harness_chol_solve.restype = ctypes.c_int
+    so.harness_chol_solve.argtypes = [ctypes.c_int, _D, _D]
     return so
 
 
@@ -379,3 +381,28 @@ def test_lu_reports_singular(lib):
     m = np.eye(3)
     m[1, 1] = np.nan
     assert lib.harness_lu_solve(3, _p(m.ravel(order="F").copy()), _p(np.ones(3))) == 1
+
+
+def test_cholesky_solves_the_rovers_mass_matrix_and_refuses_what_is_not_positive_definite(lib):
+    """linalg_chol_factor/solve (the FMU's mass-matrix solve, issue 13): equal to numpy on the 3D rover's own mass
+    matrix at random poses (only the lower triangle read), and 1, not a wrong answer, for an indefinite, a
+    singular or a NaN matrix (the glue then falls back to the pivoting LU)."""
+    from cedra.models.scene import load_shipped
+    from cedra.reports.common import Problem
+    prob = Problem(load_shipped("flat3d"))
+    q0 = prob.settle()
+    rng = np.random.default_rng(17)
+    for _ in range(10):
+        m = np.array(prob.fns["cedra_M"](q0 + rng.normal(0, 0.05, prob.nq), prob.par))
+        x_true = rng.standard_normal(prob.nq)
+        b = m @ x_true
+        upper_garbage = m + np.triu(rng.standard_normal(m.shape), 1)     # the upper triangle is never read
+        bb = b.copy()
+        assert lib.harness_chol_solve(prob.nq, _p(upper_garbage.ravel(order="F").copy()), _p(bb)) == 0
+        assert np.linalg.norm(bb - np.linalg.solve(m, b)) / np.linalg.norm(x_true) < 1e-12
+    indefinite = np.diag([2.0, 1.0, -1e-3, 4.0])
+    singular = np.array([[1.0, 1.0], [1.0, 1.0]])
+    nan = np.eye(3)
+    nan[2, 2] = np.nan
+    for a in (indefinite, singular, nan):
+        assert lib.harness_chol_solve(a.shape[0], _p(a.ravel(order="F").copy()), _p(np.ones(a.shape[0]))) == 1

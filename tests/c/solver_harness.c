@@ -102,21 +102,34 @@ int harness_lu_solve(int n, const double *a, double *b) {
     return rc;
 }
 
+/* Factor a copy of the symmetric A (n <= 64; its lower triangle is read) and solve A x = b in place on b; returns
+ * linalg_chol_factor's code. */
+int harness_chol_solve(int n, const double *a, double *b) {
+    double l[64 * 64];
+    if (n > 64) return -1;
+    memcpy(l, a, sizeof(double) * (size_t)n * (size_t)n);
+    int rc = linalg_chol_factor(n, l);
+    if (rc == 0) linalg_chol_solve(n, l, b);
+    return rc;
+}
+
 /* ---- issue 13: the RODAS4 stage system with the second-order structure, and switch location ---- */
 
 /* Solve (fac I - J) x = b for n <= 64 twice: densely (out_full) and with the n2 x n2 Schur complement (out_red).
+ * M NULL: the reduced solve reads J too; else it reads Jm, J with its u rows premultiplied by M (solver.h mass_rows).
  * Returns the two factorizations' codes, full * 2 + reduced. */
-int harness_stage_solve(int n, int n2, double fac, const double *J, const double *b, double *out_full,
-                        double *out_red) {
+int harness_stage_solve(int n, int n2, double fac, const double *J, const double *Jm, const double *M,
+                        const double *b, double *out_full, double *out_red) {
     double work[64 * 64 + 64];
     int piv[64];
     if (n > 64 || n2 < 1 || 2 * n2 > n) return -1;
     memcpy(out_full, b, sizeof(double) * (size_t)n);
     memcpy(out_red, b, sizeof(double) * (size_t)n);
-    int rf = solver_stage_factor(n, 0, fac, J, work, piv);
-    if (rf == 0) solver_stage_solve(n, 0, fac, J, work, piv, out_full);
-    int rr = solver_stage_factor(n, n2, fac, J, work, piv);
-    if (rr == 0) solver_stage_solve(n, n2, fac, J, work, piv, out_red);
+    int rf = solver_stage_factor(n, 0, fac, J, NULL, work, piv);
+    if (rf == 0) solver_stage_solve(n, 0, fac, J, NULL, work, piv, out_full);
+    const double *Jr = M ? Jm : J;
+    int rr = solver_stage_factor(n, n2, fac, Jr, M, work, piv);
+    if (rr == 0) solver_stage_solve(n, n2, fac, Jr, M, work, piv, out_red);
     return rf * 2 + rr;
 }
 
@@ -167,8 +180,9 @@ int harness_ball(int method, double tol, double h_max, double z0, double t_end, 
     solver_stats st = {0, 0, 0, 0, 0};
     double x[2] = {z0, 0}, work[64];
     if (solver_workspace_size(method, 2) > 64) return -1;
+    solver_structure sp = {n2, 0, 0};
     int rc = solver_integrate_post(&s, 2, x, 0, t_end, ball_rhs, ball_jac, NULL, with_locate ? ball_locate : NULL,
-                                   NULL, &c, work, &st, msg, (size_t)msg_len, n2);
+                                   NULL, &c, work, &st, msg, (size_t)msg_len, &sp);
     out[0] = c.located; out[1] = c.t0; out[2] = c.t1; out[3] = (double)c.cuts;
     out[4] = (double)st.steps; out[5] = (double)st.rejected; out[6] = x[0]; out[7] = x[1];
     return rc;

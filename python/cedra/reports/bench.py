@@ -153,10 +153,10 @@ double stage_seconds(int n, int n2, const double *J, int reps) {
     clock_gettime(CLOCK_MONOTONIC, &a);
     for (int k = 0; k < reps; k++) {
         double fac = 1e3 * (1 + 1e-9 * k);
-        solver_stage_factor(n, n2, fac, J, work, piv);
+        solver_stage_factor(n, n2, fac, J, NULL, work, piv);
         for (int s = 0; s < 6; s++) {
             for (int i = 0; i < n; i++) r[i] = 1.0 + i + s;
-            solver_stage_solve(n, n2, fac, J, work, piv, r);
+            solver_stage_solve(n, n2, fac, J, NULL, work, piv, r);
             sink += r[0];
         }
     }
