@@ -22,6 +22,9 @@ struct block_ws {
     model_ws *model;
     double *work;                   /* solver workspace (largest over the methods) */
     double x_save[NX];
+    /* the kept Jacobian at the call's start: a discarded step leaves the instance as it was */
+    double keep_save[NX * NX + NQ * NQ];
+    long jac_age_save;
     double y_tmp[DIM(CEDRA_NY)];
     heightmap terrain;              /* heightmap scenes: resources/heightmap.txt (constant: not FMU state) */
 };
@@ -233,7 +236,12 @@ int block_refuse_step(instance *c, double t, double h) {
 /* back to the state at t (time and outputs untouched; the counters keep the failed attempt), the reason
  * `why` + `detail` in c->msg */
 static fmi2Status step_failed(instance *c, const char *why, const char *detail) {
-    memcpy(c->s.b.x, c->ws->x_save, sizeof(double) * NX);
+    block_state *b = &c->s.b;
+    memcpy(b->x, c->ws->x_save, sizeof(double) * NX);
+    if (b->solver.method == SOLVER_ROS34PW2) {
+        memcpy(b->jac_keep, c->ws->keep_save, sizeof b->jac_keep);
+        b->stats.jac_age = c->ws->jac_age_save;
+    }
     snprintf(c->msg, sizeof c->msg, "%s%s%s", why, detail[0] ? "; model: " : "", detail);
     return fmi2Discard;
 }
@@ -245,12 +253,16 @@ fmi2Status block_step(instance *c, double t, double h) {
     char solver_msg[MSG_LEN];
     model_bind(ws, s->inp, s->par);
     memcpy(c->ws->x_save, b->x, sizeof(double) * NX);
+    if (b->solver.method == SOLVER_ROS34PW2) {
+        memcpy(c->ws->keep_save, b->jac_keep, sizeof b->jac_keep);
+        c->ws->jac_age_save = b->stats.jac_age;
+    }
     solver_msg[0] = '\0';
     model_clear_message(ws);
     model_take_located(ws, -1, NULL, NULL, NULL);
     int failed = solver_integrate_post(&b->solver, NX, b->x, t, t + h, model_rhs, model_jac, model_accept_step,
                                        CEDRA_LOCATE_FN, model_post_step, ws, c->ws->work, &b->stats, solver_msg,
-                                       sizeof solver_msg, model_structure());
+                                       sizeof solver_msg, model_structure(), b->jac_keep);
     long located = model_take_located(ws, 0, NULL, NULL, NULL);
     for (long k = 0; k < located && k < 8; k++) {   /* the most recent ones */
         const char *name = "";
@@ -275,8 +287,10 @@ const char *block_state_problem(instance *c, const cedra_state *st, char *buf, s
         return "a flag is neither 0 nor 1";
     if (!all_finite(b->x, NX)) return "the state x or the outputs are not finite";
     if (b->stats.steps < 0 || b->stats.rejected < 0 || b->stats.rhs_evals < 0 || b->stats.jac_evals < 0 ||
-        !(b->stats.h_next >= 0) || !isfinite(b->stats.h_next))
+        !(b->stats.h_next >= 0) || !isfinite(b->stats.h_next) || b->stats.jac_age < 0)
         return "a solver counter is negative or not finite";
+    if (b->stats.jac_age > 0 && !all_finite(b->jac_keep, NX * NX + NQ * NQ))
+        return "the solver's kept Jacobian is not finite";
     if (st->outputs_valid) {
         /* the model must accept the state (the bound inputs and parameters are the candidate's, then ours again) */
         model_bind(c->ws->model, st->inp, st->par);

@@ -1,4 +1,5 @@
-/* Embedded ODE solvers (see solver.h): fixed-step RK4, adaptive Dormand-Prince 5(4), adaptive Rosenbrock RODAS4.
+/* Embedded ODE solvers (see solver.h): fixed-step RK4, adaptive Dormand-Prince 5(4), adaptive Rosenbrock RODAS4 and
+ * Rosenbrock-W ROS34PW2.
  * No allocation, no globals: every vector lives in the caller's `work`; the only stack array is the pivot
  * vector of the (small, n <= a few dozen) iteration matrix, because `work` holds doubles only. */
 #define _POSIX_C_SOURCE 200112L   /* clock_gettime: the wall-clock budget of a call */
@@ -96,9 +97,14 @@ size_t solver_workspace_size(int method, int n) {
     switch (method) {
     case SOLVER_RK4: return 5 * N;                   /* k1..k4, stage state */
     case SOLVER_DOPRI5: return 9 * N;                /* k1..k7, stage state (then error), xnew */
-    case SOLVER_RODAS4: return 10 * N + 3 * N * N;   /* f0, f_t, k1..k6, stage state, stage F; J, M, W */
+    case SOLVER_RODAS4:                              /* f0, f_t, k1..k6, stage state, stage F; J, M, W */
+    case SOLVER_ROS34PW2: return 10 * N + 3 * N * N; /* the same layout (k1..k4 and the error in k6's place) */
     default: return 0;
     }
+}
+
+size_t solver_keep_size(int n, int n2) {
+    return (size_t)(n > 0 ? n : 0) * (size_t)(n > 0 ? n : 0) + (size_t)(n2 > 0 ? n2 : 0) * (size_t)(n2 > 0 ? n2 : 0);
 }
 
 /* ------------------------------------------------------------------------------------------------------------- */
@@ -303,13 +309,8 @@ void solver_stage_solve(int n, int n2, double fac, const double *J, const double
 
 /* Data at the start of a RODAS4 step: F, the Jacobian and F_t at (t, x); kept when a step is rejected (a retry
  * from the same point, whatever its h, refactors only the n2 x n2 stage matrix: the Jacobian is reused).
- * Jacobian reuse ACROSS accepted steps (issue 13 item 4) is not done, by decision: RODAS4's order conditions
- * assume the exact Jacobian at the step's start (it is not a W-method), so an old J costs it its order and its
- * error estimate's meaning exactly where the contact switches change J; a W-method (e.g. ROS34PW2, order 3) or a
- * Radau/BDF with simplified Newton as a 4th solver.method would keep J, but on this model one Jacobian
- * (cedra_rjac plus 2 nq solves with M; bump2d: ~9 us + the solves) costs about two right-hand sides (~7 us each)
- * of the ~8 a step evaluates (6 stages, F and dF/dt at the start), so the saving is bounded by ~20 % of a step
- * while a lower-order method needs more steps at the tolerances the report measures (1e-6 and tighter). The measured costs are in `python -m cedra bench --step-cost`. */
+ * RODAS4 does not reuse a Jacobian ACROSS accepted steps: its order conditions assume the exact Jacobian at the
+ * step's start (it is not a W-method). The method that keeps one is ROS34PW2 below (solver.method 3). */
 static int rodas4_start(int n, const solver_structure *sp, const double *x, double t, double tmax,
                         solver_rhs_fn rhs, solver_jac_fn jac, void *ctx, double *w, solver_stats *st) {
     double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *tmp = RO_XNEW(w, n), *J = RO_J(w, n);
@@ -384,7 +385,105 @@ static int rodas4_step(int n, const solver_structure *sp, const double *x, doubl
 }
 
 /* ------------------------------------------------------------------------------------------------------------- */
-/* Shared adaptive driver for DOPRI5 and RODAS4. */
+/* ROS34PW2 (Rang & Angermann 2005): a Rosenbrock-W method, 4 stages, order 3 with an embedded order 2, L-stable and
+ * stiffly accurate. A W-method keeps its order with ANY matrix in place of the Jacobian, so the Jacobian can be kept
+ * over many steps (and communication steps): a step then costs 4 evaluations of F, one n2 x n2 factorization and 4
+ * stage solves, where a RODAS4 step costs 6 F, a Jacobian, a factorization and 6 solves. An outdated Jacobian only
+ * costs stability margin, which the error test watches: a step rejected with an outdated Jacobian is retried with a
+ * fresh one. Coefficients in the transformed form of Hairer & Wanner (IV.7.25), as RODAS4's above, computed from
+ * the published tableau (gamma, alpha_ij, gamma_ij, b, b_hat): a' = A Gamma^-1, c' = diag(1/gamma) - Gamma^-1,
+ * m = b Gamma^-1 (= row 4 of a' plus e_4: stiffly accurate), e = (b - b_hat) Gamma^-1; d_i = the row sums of
+ * Gamma (the dF/dt terms). */
+static const double rw_gamma = 4.3586652150845900e-01;
+static const double rw_c2 = 8.7173304301691801e-01, rw_c3 = 7.3157995778885238e-01;
+static const double rw_d1 = 4.3586652150845900e-01, rw_d2 = -4.3586652150845900e-01, rw_d3 = -4.1333337623388650e-01;
+static const double rw_a21 = 2.0;
+static const double rw_a31 = 1.4192173174557652e+00, rw_a32 = -2.5923221167296978e-01;
+static const double rw_a41 = 4.1847604823191613e+00, rw_a42 = -2.8519201735549599e-01, rw_a43 = 2.2942803602790423e+00;
+static const double rw_c21 = -4.5885607205580836e+00;
+static const double rw_c31 = -4.1847604823191613e+00, rw_c32 = 2.8519201735549599e-01;
+static const double rw_c41 = -6.3681792001283597e+00, rw_c42 = -6.7956209444668367e+00, rw_c43 = 2.8700986043310555e+00;
+static const double rw_e1 = 2.7774994764796900e-01, rw_e2 = -1.4032398951759988e+00, rw_e3 = 1.7726301276675507e+00,
+                    rw_e4 = 0.5;
+/* a kept Jacobian is renewed after this many steps even if no step was rejected */
+#define W_MAX_AGE 50
+
+/* the Jacobian (and dF/dt) at (t, x), f0 = F(t, x) known, into J (M beside it with mass rows); jac_age = 1 */
+static int w_fresh_jacobian(int n, const solver_structure *sp, const double *x, double t, double tmax,
+                            solver_rhs_fn rhs, solver_jac_fn jac, void *ctx, double *w, double *J, solver_stats *st) {
+    double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *tmp = RO_XNEW(w, n);
+    int ev;
+    st->jac_evals++;
+    st->jac_age = 0;
+    if (jac(ctx, t, x, f0, J)) return EV_JAC_FAILED;
+    if (!all_finite(n * n, J)) return EV_JAC_NONFINITE;
+    if (sp->mass_rows && !all_finite(sp->n2 * sp->n2, J + (size_t)n * n)) return EV_JAC_NONFINITE;
+    st->jac_age = 1;
+    if (sp->autonomous) {
+        for (int i = 0; i < n; i++) ft[i] = 0.0;
+        return EV_OK;
+    }
+    double delt = sqrt(2.220446049250313e-16 * fmax(1e-5, fabs(t)));   /* as rodas4_start */
+    if (t + delt > tmax) delt = -delt;
+    if ((ev = eval(rhs, ctx, t + delt, x, tmp, n, st))) return ev;
+    for (int i = 0; i < n; i++) ft[i] = (tmp[i] - f0[i]) / delt;
+    return EV_OK;
+}
+
+/* F at the step's start, and the Jacobian: the kept one while it may be (autonomous F, younger than W_MAX_AGE
+ * steps), else a fresh one. A non-autonomous F gets a fresh one every step (dF/dt belongs to the step's start). */
+static int w_start(int n, const solver_structure *sp, const double *x, double t, double tmax, solver_rhs_fn rhs,
+                   solver_jac_fn jac, void *ctx, double *w, double *J, solver_stats *st) {
+    int ev;
+    if ((ev = eval(rhs, ctx, t, x, RO_F0(w, n), n, st))) return ev;
+    if (sp->autonomous && st->jac_age > 0 && st->jac_age < W_MAX_AGE) {
+        st->jac_age++;
+        for (int i = 0; i < n; i++) RO_FT(w, n)[i] = 0.0;
+        return EV_OK;
+    }
+    return w_fresh_jacobian(n, sp, x, t, tmax, rhs, jac, ctx, w, J, st);
+}
+
+static int ros34pw2_step(int n, const solver_structure *sp, const double *x, double t, double h, double tend,
+                         solver_rhs_fn rhs, void *ctx, double *w, const double *J, solver_stats *st) {
+    double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *u1 = RO_K(w, n, 1), *u2 = RO_K(w, n, 2), *u3 = RO_K(w, n, 3),
+           *u4 = RO_K(w, n, 4), *err = RO_ERR(w, n), *y = RO_Y(w, n), *dy = RO_XNEW(w, n), *W = RO_W(w, n);
+    const int n2 = sp->n2;
+    const double *M = sp->mass_rows ? J + (size_t)n * n : NULL;
+    int piv[n];
+    int ev;
+    const double fac = 1.0 / (h * rw_gamma);
+    if (solver_stage_factor(n, n2, fac, J, M, W, piv)) return EV_SINGULAR;
+
+    for (int i = 0; i < n; i++) u1[i] = f0[i] + h * rw_d1 * ft[i];
+    solver_stage_solve(n, n2, fac, J, M, W, piv, u1);
+
+    for (int i = 0; i < n; i++) y[i] = x[i] + rw_a21 * u1[i];
+    if ((ev = eval(rhs, ctx, t + rw_c2 * h, y, dy, n, st))) return ev;
+    for (int i = 0; i < n; i++) u2[i] = dy[i] + h * rw_d2 * ft[i] + rw_c21 * u1[i] / h;
+    solver_stage_solve(n, n2, fac, J, M, W, piv, u2);
+
+    for (int i = 0; i < n; i++) y[i] = x[i] + rw_a31 * u1[i] + rw_a32 * u2[i];
+    if ((ev = eval(rhs, ctx, t + rw_c3 * h, y, dy, n, st))) return ev;
+    for (int i = 0; i < n; i++) u3[i] = dy[i] + h * rw_d3 * ft[i] + (rw_c31 * u1[i] + rw_c32 * u2[i]) / h;
+    solver_stage_solve(n, n2, fac, J, M, W, piv, u3);
+
+    /* stage 4 at t + h (d4 = 0) */
+    for (int i = 0; i < n; i++) y[i] = x[i] + rw_a41 * u1[i] + rw_a42 * u2[i] + rw_a43 * u3[i];
+    if (!all_finite(n, y)) return EV_NONFINITE;
+    if ((ev = eval(rhs, ctx, tend, y, dy, n, st))) return ev;
+    for (int i = 0; i < n; i++) u4[i] = dy[i] + (rw_c41 * u1[i] + rw_c42 * u2[i] + rw_c43 * u3[i]) / h;
+    solver_stage_solve(n, n2, fac, J, M, W, piv, u4);
+
+    for (int i = 0; i < n; i++) {
+        dy[i] = y[i] + u4[i];                                         /* xnew (stiffly accurate) */
+        err[i] = rw_e1 * u1[i] + rw_e2 * u2[i] + rw_e3 * u3[i] + rw_e4 * u4[i];   /* xnew - x_embedded */
+    }
+    return all_finite(n, dy) ? EV_OK : EV_NONFINITE;
+}
+
+/* ------------------------------------------------------------------------------------------------------------- */
+/* Shared adaptive driver for DOPRI5, RODAS4 and ROS34PW2. */
 
 /* Hairer's HINIT (dopri5.f): an explicit Euler probe estimates the second derivative; h is chosen so that
  * h^order * max(|x''|, |x'|) ~ 0.01 in the tolerance-scaled norm. f0 = F(t, x). */
@@ -404,11 +503,16 @@ static double initial_step(int n, const double *x, double t, const double *f0, d
 
 static int adaptive(const solver_settings *s, int n, const solver_structure *sp, double *x, double t0, double t1, solver_rhs_fn rhs,
                     solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate, solver_post_fn post,
-                    void *ctx, double *w, solver_stats *st, char *msg, size_t msg_len) {
-    const int dopri = s->method == SOLVER_DOPRI5;
-    const char *name = dopri ? "dopri5" : "rodas4";
-    /* The error estimate is O(h^(q+1)), q the lower of the two orders: 4 for DOPRI5, 3 for RODAS4. */
-    const double expo = dopri ? 1.0 / 5 : 1.0 / 4;
+                    void *ctx, double *w, double *keep, solver_stats *st, char *msg, size_t msg_len) {
+    const int dopri = s->method == SOLVER_DOPRI5, wmeth = s->method == SOLVER_ROS34PW2;
+    const char *name = dopri ? "dopri5" : wmeth ? "ros34pw2" : "rodas4";
+    /* The error estimate is O(h^(q+1)), q the lower of the two orders: 4 for DOPRI5, 3 for RODAS4, 2 for
+     * ROS34PW2. */
+    const double expo = dopri ? 1.0 / 5 : wmeth ? 1.0 / 3 : 1.0 / 4;
+    /* ROS34PW2's Jacobian: kept in the caller's memory across calls, else in the workspace for this call only */
+    double *Jw = keep ? keep : RO_J(w, n);
+    int w_refresh = 0;      /* the last step was rejected with a kept (older) Jacobian: the retry gets a fresh one */
+    if (wmeth && !keep) st->jac_age = 0;
     const double grow_max = dopri ? 10.0 : 5.0;
     const double tol = s->tol, hmax = s->h_max;
     double *f0 = w;   /* F(t, x) is the first block in both layouts */
@@ -435,10 +539,12 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
     if (st->h_next > 0 && isfinite(st->h_next)) {
         h = fmin(st->h_next, hmax);
     } else {
-        int ev = dopri ? eval(rhs, ctx, t, x, f0, n, st) : rodas4_start(n, sp, x, t, t1, rhs, jac, ctx, w, st);
+        int ev = dopri ? eval(rhs, ctx, t, x, f0, n, st)
+                 : wmeth ? w_start(n, sp, x, t, t1, rhs, jac, ctx, w, Jw, st)
+                         : rodas4_start(n, sp, x, t, t1, rhs, jac, ctx, w, st);
         have_start = ev == EV_OK;
-        /* scratch for the probe: k4, k5 (DOPRI5) or k2, k3 (RODAS4) - never f0, f_t, J */
-        h = have_start ? initial_step(n, x, t, f0, tol, hmax, t1 - t, dopri ? 5 : 4, rhs, ctx, w + 3 * (size_t)n,
+        /* scratch for the probe: k4, k5 (DOPRI5) or k2, k3 (RODAS4, ROS34PW2) - never f0, f_t, J */
+        h = have_start ? initial_step(n, x, t, f0, tol, hmax, t1 - t, dopri ? 5 : wmeth ? 3 : 4, rhs, ctx, w + 3 * (size_t)n,
                                       w + 4 * (size_t)n, st)
                        : fmin(hmax, 1e-6 * fmax(1.0, t1 - t0));
     }
@@ -470,12 +576,19 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
 
         ev = EV_OK;
         if (!have_start) {
-            ev = dopri ? eval(rhs, ctx, t, x, f0, n, st) : rodas4_start(n, sp, x, t, t1, rhs, jac, ctx, w, st);
+            ev = dopri ? eval(rhs, ctx, t, x, f0, n, st)
+                 : wmeth ? w_start(n, sp, x, t, t1, rhs, jac, ctx, w, Jw, st)
+                         : rodas4_start(n, sp, x, t, t1, rhs, jac, ctx, w, st);
             have_start = ev == EV_OK;
+            w_refresh = 0;
+        } else if (w_refresh) {
+            ev = w_fresh_jacobian(n, sp, x, t, t1, rhs, jac, ctx, w, Jw, st);
+            w_refresh = 0;
         }
         if (ev == EV_OK)
             ev = dopri ? dopri5_step(n, x, t, hs, tend, rhs, ctx, w, st)
-                       : rodas4_step(n, sp, x, t, hs, tend, rhs, ctx, w, st);
+                 : wmeth ? ros34pw2_step(n, sp, x, t, hs, tend, rhs, ctx, w, Jw, st)
+                         : rodas4_step(n, sp, x, t, hs, tend, rhs, ctx, w, st);
         double err = ev == EV_OK ? err_norm(n, tol, errv, x, xnew) : 0.0;
         if (ev == EV_OK && isnan(err)) ev = EV_NONFINITE;
 
@@ -485,6 +598,7 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
             st->rejected++;
             rejected_last = 1;
             last_ev = ev;
+            if (wmeth && st->jac_age > 1) w_refresh = 1;
             if (++fails > MAX_FAILS) {
                 put_msg(msg, msg_len, "%s: %s %d times in a row at t = %.15g (h = %.3g)", name, ev_reason(ev),
                         fails, t, hs);
@@ -523,6 +637,7 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
             st->rejected++;
             rejected_last = 1;
             last_ev = 0;
+            if (wmeth && st->jac_age > 1) w_refresh = 1;
             located = 0;
             h_uncut = 0;
             h = hs * fmax(FAC_SHRINK, SAFETY * pow(err, -expo));
@@ -618,7 +733,8 @@ underflow:
 
 int solver_integrate(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
                      solver_jac_fn jac, void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len) {
-    return solver_integrate_post(s, n, x, t0, t1, rhs, jac, NULL, NULL, NULL, ctx, work, stats, msg, msg_len, NULL);
+    return solver_integrate_post(s, n, x, t0, t1, rhs, jac, NULL, NULL, NULL, ctx, work, stats, msg, msg_len, NULL,
+                                 NULL);
 }
 
 double solver_locate_switches(int nsw, const double *s0, const double *s1, double t, double t_new, double loc_tol,
@@ -645,7 +761,7 @@ double solver_locate_switches(int nsw, const double *s0, const double *s1, doubl
 double solver_time_resolution(double t) { return 1e-12 * fmax(1.0, fabs(t)); }
 
 int solver_check(const solver_settings *s, double t0, double t1, char *msg, size_t msg_len) {
-    static const char *const names[SOLVER_N_METHODS] = {"rk4", "dopri5", "rodas4"};
+    static const char *const names[SOLVER_N_METHODS] = {"rk4", "dopri5", "rodas4", "ros34pw2"};
     if (msg && msg_len) msg[0] = '\0';
     if (s->method < 0 || s->method >= SOLVER_N_METHODS) {
         put_msg(msg, msg_len, "solver: unknown method %d", s->method);
@@ -685,10 +801,10 @@ int solver_check(const solver_settings *s, double t0, double t1, char *msg, size
 int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1, solver_rhs_fn rhs,
                           solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate, solver_post_fn post,
                           void *ctx, double *work, solver_stats *stats, char *msg, size_t msg_len,
-                          const solver_structure *structure) {
+                          const solver_structure *structure, double *keep) {
     if (solver_check(s, t0, t1, msg, msg_len)) return 1;
-    if (s->method == SOLVER_RODAS4 && !jac) {
-        put_msg(msg, msg_len, "rodas4: no Jacobian function");
+    if ((s->method == SOLVER_RODAS4 || s->method == SOLVER_ROS34PW2) && !jac) {
+        put_msg(msg, msg_len, "%s: no Jacobian function", s->method == SOLVER_RODAS4 ? "rodas4" : "ros34pw2");
         return 1;
     }
     if (n <= 0 || t1 == t0) return 0;   /* nothing to integrate */
@@ -698,14 +814,14 @@ int solver_integrate_post(const solver_settings *s, int n, double *x, double t0,
     if (sp.n2 < 0 || 2 * sp.n2 > n) {
         /* rows premultiplied by M cannot be read without the structure they belong to */
         if (sp.mass_rows) {
-            put_msg(msg, msg_len, "rodas4: mass rows without a second-order structure (n2 = %d, n = %d)", sp.n2, n);
+            put_msg(msg, msg_len, "solver: mass rows without a second-order structure (n2 = %d, n = %d)", sp.n2, n);
             return 1;
         }
         sp.n2 = 0;   /* not a structure x can have: none */
     }
     if (sp.n2 == 0 && sp.mass_rows) {
-        put_msg(msg, msg_len, "rodas4: mass rows without a second-order structure (n2 = 0)");
+        put_msg(msg, msg_len, "solver: mass rows without a second-order structure (n2 = 0)");
         return 1;
     }
-    return adaptive(s, n, &sp, x, t0, t1, rhs, jac, accept, locate, post, ctx, work, stats, msg, msg_len);
+    return adaptive(s, n, &sp, x, t0, t1, rhs, jac, accept, locate, post, ctx, work, keep, stats, msg, msg_len);
 }

@@ -5,8 +5,8 @@
 
 #include <stddef.h>
 
-enum solver_method { SOLVER_RK4 = 0, SOLVER_DOPRI5 = 1, SOLVER_RODAS4 = 2 };
-#define SOLVER_N_METHODS 3
+enum solver_method { SOLVER_RK4 = 0, SOLVER_DOPRI5 = 1, SOLVER_RODAS4 = 2, SOLVER_ROS34PW2 = 3 };
+#define SOLVER_N_METHODS 4
 
 /* Return 0 on success; nonzero means the state cannot be evaluated (the callback has written why
  * into its context; the solver reports failure). */
@@ -53,6 +53,7 @@ typedef struct {
 typedef struct {       /* counts since the start of the simulation (part of the FMU state) */
     long steps, rejected, rhs_evals, jac_evals;
     double h_next;     /* step size proposal carried between calls (adaptive methods) */
+    long jac_age;      /* ROS34PW2: steps begun with the Jacobian kept in `keep` (0: none kept) */
 } solver_stats;
 
 /* The smallest step the solvers take at time t (1e-12 max(1, |t|)): below it time cannot be resolved, so an
@@ -96,7 +97,11 @@ typedef struct {
 int solver_integrate_post(const solver_settings *s, int n, double *x, double t0, double t1,
                           solver_rhs_fn rhs, solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate,
                           solver_post_fn post, void *ctx, double *work, solver_stats *stats, char *msg,
-                          size_t msg_len, const solver_structure *structure);
+                          size_t msg_len, const solver_structure *structure, double *keep);
+/* keep (ROS34PW2, may be NULL): solver_keep_size(n, n2) doubles the caller keeps with stats between calls (both part
+ * of its state, e.g. an FMU's), where the W-method keeps its Jacobian from call to call; NULL: a call starts with a
+ * fresh Jacobian. */
+size_t solver_keep_size(int n, int n2);
 
 /* The RODAS4 stage system (I/(h gamma) - J) k = r with fac = 1/(h gamma), for the structure of
  * solver_integrate_post (n2 > 0; n2 = 0: the dense n x n solve). M: NULL, or (n2 > 0) the mass_rows matrix, the

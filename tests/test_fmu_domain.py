@@ -25,3 +25,34 @@ def test_flipping_torque_is_a_loud_discard(tmp_path):
     # into its toggle at t = 0.041 s. Either is a loud discard with the model's reason.
     assert any("tipped over" in m or "fork beyond its toggle" in m for m in fmu.messages), fmu.messages
     fmu.close()
+
+
+def test_a_discarded_ros34pw2_step_leaves_the_kept_jacobian_as_it_was(tmp_path):
+    """ros34pw2 keeps its Jacobian in the FMU state (the last field before the checksum). A discarded step
+    restores x, and the kept Jacobian with it: the state read after the discard holds the Jacobian of before."""
+    from cedra.reports.common import Problem
+    scene = load_shipped("bump2d")
+    prob = Problem(scene)
+    keep_bytes = 8 * (prob.nx * prob.nx + prob.nq * prob.nq)
+    fmu = RoverFMU(build_fmu(scene.spec(), tmp_path))
+    fmu.start({"solver.method": 3})
+    fmu.set({f"tau[{i}]": 50.0 for i in range(1, 7)})
+
+    def kept():
+        st = fmu.fmu.getFMUState()
+        blob = bytes(fmu.fmu.serializeFMUState(st))
+        fmu.fmu.freeFMUState(st)
+        return blob[-8 - keep_bytes:-8]
+
+    before, ok, changed = kept(), True, 0
+    for k in range(1, 201):
+        ok = fmu.step(k * 0.01)
+        if not ok:
+            break
+        now = kept()
+        changed += now != before
+        before = now
+    assert not ok and fmu.status == "discard"
+    assert changed > 0                                  # the Jacobian does move from call to call
+    assert kept() == before
+    fmu.close()

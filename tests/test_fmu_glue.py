@@ -95,7 +95,7 @@ def test_reset_equals_a_fresh_instance(toy, inst):
     ("solver.tol", -1e-6, "fmi2SetReal: variable solver.tol (vr 25) = -9.9999999999999995e-07 must be > 0"),
     ("solver.tol", 0.0, "fmi2SetReal: variable solver.tol (vr 25) = 0 must be > 0"),
     ("solver.h_max", 0.0, "fmi2SetReal: variable solver.h_max (vr 26) = 0 must be > 0"),
-    ("solver.method", 7, "fmi2SetInteger: variable solver.method (vr 24) = 7 must be <= 2"),
+    ("solver.method", 7, "fmi2SetInteger: variable solver.method (vr 24) = 7 must be <= 3"),
     ("F", 2e4, "fmi2SetReal: variable F (vr 7) = 20000 must be <= 10000"),
 ])
 def test_bad_values_are_refused_with_a_message(inst, name, value, message):

@@ -79,7 +79,7 @@ int harness_run(int problem, const double *par, int method, double tol, double h
                 int msg_len) {
     harness_ctx c = {problem, par, -INFINITY, 0};
     solver_settings s = {method, tol, h_max, max_steps, max_wall};
-    solver_stats st = {(long)stats_io[0], (long)stats_io[1], (long)stats_io[2], (long)stats_io[3], stats_io[4]};
+    solver_stats st = {(long)stats_io[0], (long)stats_io[1], (long)stats_io[2], (long)stats_io[3], stats_io[4], 0};
     int rc = solver_integrate(&s, n, x, t0, t1, rhs, jac, &c, work, &st, msg, (size_t)msg_len);
     stats_io[0] = (double)st.steps;
     stats_io[1] = (double)st.rejected;
@@ -88,6 +88,39 @@ int harness_run(int problem, const double *par, int method, double tol, double h
     stats_io[4] = st.h_next;
     info_out[0] = c.t_max_seen;
     info_out[1] = (double)c.calls;
+    return rc;
+}
+
+/* ROS34PW2 (the W-method) on a problem, with the Jacobian the method is given scaled by jac_scale (1: exact; a
+ * W-method keeps its order with any matrix), F declared autonomous or not, and the kept Jacobian in `keep`
+ * (solver_keep_size(n, 0) doubles; NULL: not kept between calls). stats_io: steps, rejected, rhs_evals, jac_evals,
+ * h_next, jac_age (in and out). */
+static double w_jac_scale = 1.0;
+static int scaled_jac(void *vctx, double t, const double *x, const double *xdot, double *J) {
+    harness_ctx *c = vctx;
+    int rc = jac(vctx, t, x, xdot, J);
+    int n = c->problem == 0 || c->problem == 6 ? 1 : 2;
+    for (int k = 0; k < n * n; k++) J[k] *= w_jac_scale;
+    return rc;
+}
+
+int harness_run_w(int problem, const double *par, double tol, double h_max, int n, double *x, double t0, double t1,
+                  double *work, double *keep, double *stats_io, double jac_scale, int autonomous, char *msg,
+                  int msg_len) {
+    harness_ctx c = {problem, par, -INFINITY, 0};
+    solver_settings s = {SOLVER_ROS34PW2, tol, h_max, 1000000, 100.0};
+    solver_stats st = {(long)stats_io[0], (long)stats_io[1], (long)stats_io[2], (long)stats_io[3], stats_io[4],
+                       (long)stats_io[5]};
+    solver_structure sp = {0, 0, autonomous};
+    w_jac_scale = jac_scale;
+    int rc = solver_integrate_post(&s, n, x, t0, t1, rhs, scaled_jac, NULL, NULL, NULL, &c, work, &st, msg,
+                                   (size_t)msg_len, &sp, keep);
+    stats_io[0] = (double)st.steps;
+    stats_io[1] = (double)st.rejected;
+    stats_io[2] = (double)st.rhs_evals;
+    stats_io[3] = (double)st.jac_evals;
+    stats_io[4] = st.h_next;
+    stats_io[5] = (double)st.jac_age;
     return rc;
 }
 
@@ -177,12 +210,12 @@ int harness_ball(int method, double tol, double h_max, double z0, double t_end, 
                  double *out, char *msg, int msg_len) {
     ball_ctx c = {9.81, 1e5, 600, 1e-10, 0, 0, 0, 0};
     solver_settings s = {method, tol, h_max, 1000000, 100.0};
-    solver_stats st = {0, 0, 0, 0, 0};
+    solver_stats st = {0, 0, 0, 0, 0, 0};
     double x[2] = {z0, 0}, work[64];
     if (solver_workspace_size(method, 2) > 64) return -1;
     solver_structure sp = {n2, 0, 0};
     int rc = solver_integrate_post(&s, 2, x, 0, t_end, ball_rhs, ball_jac, NULL, with_locate ? ball_locate : NULL,
-                                   NULL, &c, work, &st, msg, (size_t)msg_len, &sp);
+                                   NULL, &c, work, &st, msg, (size_t)msg_len, &sp, NULL);
     out[0] = c.located; out[1] = c.t0; out[2] = c.t1; out[3] = (double)c.cuts;
     out[4] = (double)st.steps; out[5] = (double)st.rejected; out[6] = x[0]; out[7] = x[1];
     return rc;

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, ModelSpec
 
-SOLVER_METHODS = ("rk4", "dopri5", "rodas4")          # solver.method = index (enum solver_method in solver.h)
+SOLVER_METHODS = ("rk4", "dopri5", "rodas4", "ros34pw2")   # solver.method = index (enum solver_method in solver.h)
 KINDS = ("par", "inp", "out", "q_start", "u_start", "settle", "solver", "stat")
 # max_steps and max_wall_time bound the cost of one fmi2DoStep (no call runs without a bound): 1 s of wall time
 # answers about as fast as a user waits for one call; 100000 attempted steps is ~1-4 s of the 2D/3D models on

@@ -14,7 +14,7 @@ before any code is generated.
     stop_time = 15.0                # s, the FMU's DefaultExperiment
     output_interval = 0.01          # s, the DefaultExperiment's step size
     [solver]                        # defaults of the FMU's solver.* parameters
-    method = "rodas4"               # rk4 | dopri5 | rodas4
+    method = "rodas4"               # rk4 | dopri5 | rodas4 | ros34pw2
     tol = 1e-6
     h_max = 0.01
     max_steps = 100000              # budget of one fmi2DoStep: attempted steps
@@ -37,7 +37,7 @@ from cedra.models.plant import CedraModel, ModelOptions, input_table, param_tabl
 from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, ModelSpec
 from cedra.mechanics.terrain import KINDS
 
-SOLVERS = {"rk4": 0, "dopri5": 1, "rodas4": 2}
+SOLVERS = {"rk4": 0, "dopri5": 1, "rodas4": 2, "ros34pw2": 3}
 TOP_KEYS = {"name", "description", "dims", "terrain", "heightmap", "contact", "steering", "locked_wheels",
             "drives", "stop_time", "output_interval",
             "solver", "parameters", "inputs", "start"}
