@@ -153,7 +153,10 @@ int block_value(const cedra_state *s, const cedra_var *v, double *out) {
         case CEDRA_K_SETTLE: *out = b->settle; return 0;
         case CEDRA_K_SOLVER: *out = solver_value(&b->solver, v->index); return 0;
         case CEDRA_K_STAT:
-            *out = (double)(v->index == 0 ? b->stats.steps : v->index == 1 ? b->stats.rejected : b->stats.rhs_evals);
+            *out = (double)(v->index == 0   ? b->stats.steps
+                            : v->index == 1 ? b->stats.rejected
+                            : v->index == 2 ? b->stats.rhs_evals
+                                            : b->stats.jac_evals);
             return 0;
         default: return 1;
     }

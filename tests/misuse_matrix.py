@@ -31,7 +31,7 @@ from fmpy.fmi1 import calloc, free
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 
-from cedra.fmu.variables import SOLVER_METHODS
+from cedra.contract import SOLVER_METHODS
 
 OK, WARNING, DISCARD, ERROR, FATAL = range(5)
 STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]

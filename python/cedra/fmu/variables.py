@@ -12,7 +12,7 @@ start, unit, min/max, type) and where the C glue finds it (`kind`, `index`):
     "u_start"   i                   start value of u[i]              (parameter start.speed.<q name>)
     "settle"    0                   Boolean start.settle
     "solver"    0 method, 1 tol, 2 h_max, 3 max_steps, 4 max_wall_time   (parameters solver.*)
-    "stat"      0 steps, 1 rejected, 2 rhs_evals                     (Integer outputs solver.*)
+    "stat"      0 steps, 1 rejected, 2 rhs_evals, 3 jac_evals        (Integer outputs solver.*)
 
 Value references are the row numbers (0, 1, 2, ...), unique across types, so the C glue indexes its table
 directly with the value reference.
@@ -22,9 +22,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, ModelSpec
+from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, SOLVER_METHODS, ModelSpec
 
-SOLVER_METHODS = ("rk4", "dopri5", "rodas4", "ros34pw2")   # solver.method = index (enum solver_method in solver.h)
 KINDS = ("par", "inp", "out", "q_start", "u_start", "settle", "solver", "stat")
 # max_steps and max_wall_time bound the cost of one fmi2DoStep (no call runs without a bound): 1 s of wall time
 # answers about as fast as a user waits for one call; 100000 attempted steps is ~1-4 s of the 2D/3D models on
@@ -166,7 +165,9 @@ def _plant_rows(spec: ModelSpec, add) -> None:
         max=MAX_WALL_LIMIT)
     for j, (n, d) in enumerate((("steps", "accepted steps since the start"),
                                 ("rejected", "rejected steps since the start"),
-                                ("rhs_evals", "right-hand side evaluations since the start"))):
+                                ("rhs_evals", "right-hand side evaluations since the start"),
+                                ("jac_evals", "Jacobian evaluations since the start (rodas4: one per accepted "
+                                              "step; ros34pw2 keeps one over many steps)"))):
         add(name=f"solver.{n}", causality="output", variability="discrete", initial="calculated", start=None,
             unit=None, description=f"embedded solver: {d}", type="Integer", kind="stat", index=j)
 

@@ -34,10 +34,10 @@ from pathlib import Path
 
 from cedra.mechanics import heightmap
 from cedra.models.plant import CedraModel, ModelOptions, input_table, param_table, projection
-from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, ModelSpec
+from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, SOLVER_METHODS, ModelSpec
 from cedra.mechanics.terrain import KINDS
 
-SOLVERS = {"rk4": 0, "dopri5": 1, "rodas4": 2, "ros34pw2": 3}
+SOLVERS = {name: k for k, name in enumerate(SOLVER_METHODS)}
 TOP_KEYS = {"name", "description", "dims", "terrain", "heightmap", "contact", "steering", "locked_wheels",
             "drives", "stop_time", "output_interval",
             "solver", "parameters", "inputs", "start"}

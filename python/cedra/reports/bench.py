@@ -138,9 +138,10 @@ def bench_contact(build, stop_time):
 
 # ------------------------------------------------------------------ cost of one implicit step (issue 13 item 4)
 STEP_SCENES = ("bump2d", "bump3d")
-STEP_VARIANTS = {        # label: extra C flags of the FMU build (fmu_src/plant.c)
-    "dense 2n+1 solve": ["-DCEDRA_SCHUR_N2=0"],
-    "Schur n x n solve": [],
+STEP_VARIANTS = {        # label: (extra C flags of the FMU build (fmu_src/model_glue.c), solver settings)
+    "rodas4, dense 2n+1 solve": (["-DCEDRA_SCHUR_N2=0"], {}),
+    "rodas4, Schur n x n solve": ([], {}),
+    "ros34pw2, Schur n x n solve": ([], {"solver.method": 3}),
 }
 STAGE_C = r"""
 #include <time.h>
@@ -195,11 +196,11 @@ def stage_cost(prob, workdir: Path) -> dict:
 
 
 def step_cost(build: Path, stop_time=8.0, log=print) -> list[dict]:
-    """Per attempted step of rodas4 on the paper's run (the main job's controller, scene defaults): rhs
-    evaluations, Jacobians and LU factorizations (RODAS4: one factorization per attempt, one Jacobian per new
-    start), and CPU microseconds, for the FMU built with the dense and with the reduced stage solve (the same
-    sources otherwise), plus the linear algebra alone."""
-    from cedra.fmu.packaging import CFLAGS, build_fmu
+    """Per attempted step on the paper's run (the main job's controller, tol 1e-6): rhs evaluations, Jacobians
+    (RODAS4: one per accepted step; ROS34PW2 keeps one over many) and CPU microseconds, for rodas4 in the FMU built
+    with the dense and with the reduced stage solve (the same sources otherwise) and for ros34pw2, plus RODAS4's
+    linear algebra alone (one factorization per attempt)."""
+    from cedra.fmu.packaging import build_fmu
     from cedra.models.scene import load_shipped
     from cedra.reports.common import Problem
     rows = []
@@ -207,35 +208,36 @@ def step_cost(build: Path, stop_time=8.0, log=print) -> list[dict]:
         for name in STEP_SCENES:
             sc = load_shipped(name)
             la = stage_cost(Problem(sc), Path(d))
-            for label, flags in STEP_VARIANTS.items():
-                CFLAGS.extend(flags)
-                try:
-                    path = build_fmu(sc.spec(), Path(d) / label.replace(" ", "_"))
-                finally:
-                    for fl in flags:
-                        CFLAGS.remove(fl)
-                r = fmu_closed_loop(path, stop_time, label=f"{name} {label}")
+            builds = {}
+            for label, (flags, settings) in STEP_VARIANTS.items():
+                key = tuple(flags)
+                if key not in builds:
+                    builds[key] = build_fmu(sc.spec(), Path(d) / f"{name}_{len(builds)}", extra_cflags=flags)
+                r = fmu_closed_loop(builds[key], stop_time, settings, label=f"{name} {label}")
                 attempts = r.steps + r.extra["rejected"]
                 rows.append(dict(scene=name, variant=label, ok=r.ok, cpu=r.cpu, steps=r.steps,
                                  rejected=r.extra["rejected"], evals=r.extra["rhs_evals"],
                                  us_per_attempt=1e6 * r.cpu / attempts, evals_per_attempt=r.extra["rhs_evals"] / attempts,
-                                 la_us=1e6 * la["schur" if "Schur" in label else "dense"]))
+                                 jacs_per_attempt=r.extra["jac_evals"] / attempts,
+                                 la_us=1e6 * la["schur" if "Schur" in label else "dense"] if "rodas4" in label
+                                 else None))
                 log(f"  ... {name} {label}: {r.cpu:.2f} s CPU")
     return rows
 
 
 def print_step_cost(build: Path, stop_time=8.0) -> int:
-    print(f"\ncost of one rodas4 step (issue 13 item 4): the paper's run, {stop_time:g} s, scene defaults; per attempted "
-          "step (accepted + rejected); 1 LU factorization per attempt, 1 Jacobian per accepted step; CPU = "
-          "time.process_time of the run; linear algebra = 1 factorization + 6 stage solves at the settled state's "
-          "Jacobian")
+    print(f"\ncost of one implicit step (issue 13 item 4): the paper's run, {stop_time:g} s, tol 1e-6; per attempted "
+          "step (accepted + rejected); 1 LU factorization per attempt; CPU = time.process_time of the run (the "
+          "master's calls included); RODAS4's linear algebra = 1 factorization + 6 stage solves at the settled "
+          "state's Jacobian, timed alone")
     rows = step_cost(build, stop_time)
-    print("| scene | stage solve | CPU s | steps (rejected) | rhs evals per attempt | us per attempt | linear algebra "
-          "us per attempt |")
-    print("|---|---|---|---|---|---|---|")
+    print("| scene | method, stage solve | CPU s | steps (rejected) | rhs evals per attempt | Jacobians per attempt | "
+          "us per attempt | linear algebra us per attempt |")
+    print("|---|---|---|---|---|---|---|---|")
     for r in rows:
+        la = "" if r["la_us"] is None else f"{r['la_us']:.2f}"
         print(f"| {r['scene']} | {r['variant']} | {r['cpu']:.3f} | {r['steps']} ({r['rejected']}) | "
-              f"{r['evals_per_attempt']:.2f} | {r['us_per_attempt']:.1f} | {r['la_us']:.2f} |")
+              f"{r['evals_per_attempt']:.2f} | {r['jacs_per_attempt']:.3f} | {r['us_per_attempt']:.1f} | {la} |")
     return 0 if all(r["ok"] for r in rows) else 1
 
 
@@ -361,9 +363,10 @@ def fmu_closed_loop(path, stop_time, settings: dict | None = None, label=""):
             break
     cpu = time.process_time() - cpu
     steps, rejected, evals = (int(v) for v in f.get(["solver.steps", "solver.rejected", "solver.rhs_evals"]))
+    jacs = int(f.get(["solver.jac_evals"])[0]) if f.has("solver.jac_evals") else -1
     f.close()
     return Result(label or f"FMU {Path(path).stem}", cpu, float(t[-1]), steps, t, x, F, ok, msg,
-                  extra=dict(rejected=rejected, rhs_evals=evals))
+                  extra=dict(rejected=rejected, rhs_evals=evals, jac_evals=jacs))
 
 
 def side_by_side(build: Path, stop_time=SIDE_STOP, dts=MUJOCO_DTS, log=print, quiet=False) -> dict:

@@ -78,6 +78,8 @@ class Config:
     # issue 13: rodas4 from an FMU built without switch location and with the dense 2n+1 stage solve (the same
     # sources, C flags of fmu_src/plant.c), at these tolerances: the gain of items 3-4 at equal error
     baseline_tols: list = field(default_factory=list)
+    # issue 13: ROS34PW2, the W-method that keeps its Jacobian (solver.method 3)
+    ros34pw2_tols: list = field(default_factory=list)
 
 
 FULL = Config(
@@ -93,6 +95,7 @@ FULL = Config(
     implicit_rtols=[1e-3, 1e-5, 1e-7, 1e-9],
     explicit_rtols=[1e-3, 1e-6, 1e-9],
     baseline_tols=[1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10],
+    ros34pw2_tols=[1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8],
 )
 
 QUICK = Config(
@@ -106,6 +109,7 @@ QUICK = Config(
     implicit_rtols=[1e-6],
     explicit_rtols=[],
     idas_check=False,
+    ros34pw2_tols=[1e-4, 1e-6],
 )
 
 
@@ -179,6 +183,8 @@ def run_scene(name, cfg: Config, build="build", log=print) -> SceneResult:
             fmu("rodas4", tol, 0.01, FMU_COMM)
         for tol in cfg.dopri5_tols:
             fmu("dopri5", tol, 0.01, FMU_COMM)
+        for tol in cfg.ros34pw2_tols:
+            fmu("ros34pw2", tol, 0.01, FMU_COMM)
         if cfg.baseline_tols:
             import tempfile
             from cedra.fmu.packaging import build_fmu
