@@ -99,6 +99,10 @@ static int read_terrain(instance *c, const char *resource_location) {
 
 int block_instantiate(instance *c, const char *resource_location) {
     size_t nw = 0;
+    if (solver_keep_size(NX, model_structure()->n2) > sizeof c->s.b.jac_keep / sizeof(double)) {
+        log_msg(c, fmi2Fatal, CAT_FATAL, "fmi2Instantiate: the solver's kept Jacobian does not fit the state");
+        return 1;
+    }
     for (int m = 0; m < SOLVER_N_METHODS; m++) {
         size_t w = solver_workspace_size(m, NX);
         if (w > nw) nw = w;
