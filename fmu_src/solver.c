@@ -681,6 +681,8 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
         }
 
         /* accepted: propose the next step */
+        /* a force law switched at this step's end (a touchdown, a stop): the kept Jacobian is the other law's */
+        if (wmeth && (located || crossed)) st->jac_age = 0;
         double q;   /* h / h_new */
         if (dopri) {
             q = pow(err, expo - 0.75 * PI_BETA) / pow(facold, PI_BETA) / SAFETY;

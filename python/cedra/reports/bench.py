@@ -321,51 +321,29 @@ CONVERGED = 1e-3         # peak Fn within this (relative) of the reference run: 
 
 
 def fmu_closed_loop(path, stop_time, settings: dict | None = None, label=""):
-    """The paper's run through the FMU (spec section 10, the main job's controller), reading only what the table
-    needs (body.vx for the controller, body.x, the six wheel[i].Fn) in one fmi2GetReal per sample. The master
-    calls the FMU's fmi2GetReal, fmi2SetReal and fmi2DoStep through ctypes with buffers made once, as a compiled
-    master would (FMPy's checked wrappers build the arrays on every call: ~15 us per sample on this machine, a
-    quarter of a flat3d sample), so the CPU time is the FMU's and not the Python glue's. Timed with
-    time.process_time from fmi2Instantiate (the static settle included) to the last step; the FMU's unzip is not
-    timed."""
-    import ctypes
+    """The paper's run through the FMU (spec section 10, the main job's loop cedra.run.simulate.speed_loop), reading
+    only what the table needs (body.vx for the controller, body.x, the six wheel[i].Fn) in one fmi2GetReal per
+    sample. The loop calls the FMU's fmi2 functions with buffers made once, as a compiled master would (FMPy's
+    checked wrappers build the arrays on every call: ~20 us per sample on this machine, a fifth of a flat3d
+    sample), so the CPU time is the FMU's and not the Python glue's. Timed with time.process_time from
+    fmi2Instantiate (the static settle included) to the last step; the FMU's unzip is not timed."""
     from cedra.run.driver import RoverFMU
     from cedra.reports.mujoco_model import Result
-    from cedra.run.simulate import SAMPLE, SpeedController
+    from cedra.run.simulate import speed_loop
     f = RoverFMU(path)
     names = ["body.vx", "body.x"] + [f"wheel[{i}].Fn" for i in range(1, 7)]
-    vr = (ctypes.c_uint * len(names))(*[f.vars[n].valueReference for n in names])
-    tau_vr = (ctypes.c_uint * 6)(*[f.vars[f"tau[{i}]"].valueReference for i in range(1, 7)])
-    y, tau = (ctypes.c_double * len(names))(), (ctypes.c_double * 6)()
-    n = int(round(stop_time / SAMPLE))
-    ctrl = SpeedController()
-    t, x, F = np.empty(n + 1), np.empty(n + 1), np.empty((n + 1, 6))
-    ok, msg = True, ""
+    samples = []
     cpu = time.process_time()
     f.start(settings or {})
-    dll, comp = f.fmu.dll, f.fmu.component
-    get_real, set_real, do_step = dll.fmi2GetReal, dll.fmi2SetReal, dll.fmi2DoStep
-    for k in range(n + 1):
-        if get_real(comp, vr, len(names), y) > 1:           # > fmi2Warning
-            ok, msg = False, "fmi2GetReal failed"
-        t[k], x[k], F[k] = k * SAMPLE, y[1], y[2:8]
-        if k == n or not ok:
-            break
-        tau[:] = [ctrl(y[0])] * 6
-        if set_real(comp, tau_vr, 6, tau) > 1:
-            ok, msg = False, "fmi2SetReal failed"
-            break
-        status = do_step(comp, k * SAMPLE, SAMPLE, 1)
-        if status > 1:
-            ok = False
-            msg = f"fmi2DoStep returned {status}: " + "; ".join(f.messages[-2:])
-            t, x, F = t[:k + 1], x[:k + 1], F[:k + 1]
-            break
+    ok = speed_loop(f, stop_time, names, lambda k, t, y, tau: samples.append((t, y)))
     cpu = time.process_time() - cpu
+    t = np.array([s[0] for s in samples])
+    y = np.array([s[1] for s in samples])
+    msg = "" if ok else f"{f.status}: " + "; ".join(f.messages[-2:])
     steps, rejected, evals = (int(v) for v in f.get(["solver.steps", "solver.rejected", "solver.rhs_evals"]))
     jacs = int(f.get(["solver.jac_evals"])[0]) if f.has("solver.jac_evals") else -1
     f.close()
-    return Result(label or f"FMU {Path(path).stem}", cpu, float(t[-1]), steps, t, x, F, ok, msg,
+    return Result(label or f"FMU {Path(path).stem}", cpu, float(t[-1]), steps, t, y[:, 1], y[:, 2:8], ok, msg,
                   extra=dict(rejected=rejected, rhs_evals=evals, jac_evals=jacs))
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cedra.run.driver import RoverFMU
+from cedra.run.driver import FastIO, RoverFMU
 from cedra.run.watch import plus_watched
 
 SAMPLE = 0.01          # controller period = communication step, s
@@ -45,29 +45,42 @@ def recorded(fmu: RoverFMU) -> list[str]:
     return [n for n in names if fmu.has(n)]
 
 
+def speed_loop(fmu: RoverFMU, stop_time, names: list[str], on_sample, controller: SpeedController | None = None) -> bool:
+    """The main job's closed loop on a started FMU (spec section 10): every SAMPLE s read `names` (body.vx among
+    them), compute the torque, hand (k, t, y, tau) to on_sample, which may return True to stop here, then set all
+    six tau[i] and step. The calls go through FastIO. Returns False if the FMU refused a call (fmu.status and
+    fmu.messages say why), True when the run stopped at stop_time or where on_sample said."""
+    ctrl = controller or SpeedController()
+    io = FastIO(fmu, names, [f"tau[{i}]" for i in range(1, 7)])
+    vx = names.index("body.vx")
+    n = int(round(stop_time / SAMPLE))
+    for k in range(n + 1):
+        y = io.read()
+        if y is None:
+            return False
+        tau = ctrl(y[vx])
+        if on_sample(k, k * SAMPLE, y, tau) or k == n:
+            return True
+        if not (io.write([tau] * 6) and io.step((k + 1) * SAMPLE)):
+            return False
+    return True
+
+
 def run_bump(fmu_path, stop_time=15.0, settings: dict | None = None, extra=()):
     """Run the paper's bump scene; returns (names, data rows, torques, info)."""
     fmu = RoverFMU(fmu_path)
     names = recorded(fmu) + [n for n in extra if fmu.has(n)]
-    ctrl = SpeedController()
     rows, torques = [], []
+
+    def record(k, t, y, tau):
+        if not np.all(np.isfinite(y)):
+            raise RuntimeError(f"non-finite output at t = {t}")
+        rows.append(np.concatenate([[t], y]))
+        torques.append(tau)
+
     wall = time.perf_counter()
     fmu.start(settings or {})
-    n = int(round(stop_time / SAMPLE))
-    ok = True
-    for k in range(n + 1):
-        y = fmu.get(names)
-        if not np.all(np.isfinite(y)):
-            raise RuntimeError(f"non-finite output at t = {k * SAMPLE}")
-        tau = ctrl(y[names.index("body.vx")])
-        rows.append(np.concatenate([[k * SAMPLE], y]))
-        torques.append(tau)
-        if k == n:
-            break
-        fmu.set({f"tau[{i}]": tau for i in range(1, 7)})
-        if not fmu.step((k + 1) * SAMPLE):
-            ok = False
-            break
+    ok = speed_loop(fmu, stop_time, names, record)
     wall = time.perf_counter() - wall
     info = dict(simulated=rows[-1][0], wall=wall, ok=ok, status=fmu.status, messages=list(fmu.messages))
     fmu.close()

@@ -346,7 +346,7 @@ def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout
     """The main job's run (PI speed loop, equal torques clipped at tau_max) with these parameter values; the
     summary (OUTPUTS) and status/reason. It stops early once the rover is past the obstacle or stuck."""
     from cedra.run.driver import RoverFMU
-    from cedra.run.simulate import SAMPLE, SpeedController
+    from cedra.run.simulate import SAMPLE, SpeedController, speed_loop
     wall = time.perf_counter()
     fmu = RoverFMU(_fmu_file(fmu_bytes), instance_name="sweep")
     ctrl_keys = set(CONTROLLER)
@@ -366,43 +366,42 @@ def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout
              [f"wheel[{i}].cx" for i in wheels])
     s = dict(peak_Fn=0.0, peak_ratio=0.0, max_slip=0.0, t_over=math.nan, climbed=0, final_x=math.nan, t_end=0.0,
              status="ok", reason="")
+    n = int(round(stop_time / SAMPLE))
+    x_hist = []
+    col = {name: k for k, name in enumerate(names)}
+    i_fn, i_fx, i_fy = ([col[f"wheel[{i}].{q}"] for i in wheels] for q in ("Fn", "Fx", "Fy"))
+    i_slip, i_cx = ([col[f"wheel[{i}].{q}"] for i in wheels] for q in ("slip", "cx"))
+
+    def summarize(k, t, y, tau):
+        """the summary so far; True where the run stops early"""
+        Fn, Ft = y[i_fn], np.hypot(y[i_fx], y[i_fy])
+        s["peak_Fn"] = max(s["peak_Fn"], float(Fn.max()))
+        loaded = Fn > 5.0
+        if loaded.any():
+            s["peak_ratio"] = max(s["peak_ratio"], float((Ft[loaded] / Fn[loaded]).max()))
+        s["max_slip"] = max(s["max_slip"], float(np.abs(y[i_slip]).max()))
+        s["final_x"], s["t_end"] = float(y[col["body.x"]]), t
+        if any(abs(y[col[a]]) > TIPPED for a in attitude):
+            s["reason"] = f"tipped over: |body attitude| > {TIPPED} rad at t = {t:g}"
+            return True
+        if y[i_cx].min() > goal:
+            s["climbed"], s["t_over"] = 1, t
+            return True
+        x_hist.append(y[col["body.x"]])
+        back = int(round(STUCK_TIME / SAMPLE))
+        if len(x_hist) > back and x_hist[-1] - x_hist[-1 - back] < STUCK_DX:
+            s["reason"] = f"stuck: body.x advanced less than {STUCK_DX} m in {STUCK_TIME} s"
+            return True
+        if k < n and time.perf_counter() - wall > timeout:
+            s["status"], s["reason"] = "timeout", f"run took more than {timeout:g} s of wall time at t = {t:g}"
+            return True
+        return False
+
     try:
         fmu.start(values)
-        n = int(round(stop_time / SAMPLE))
-        x_hist = []
-        for k in range(n + 1):
-            t = k * SAMPLE
-            y = dict(zip(names, fmu.get(names)))
-            Fn = np.array([y[n_] for n_ in fn])
-            Ft = np.hypot([y[f"wheel[{i}].Fx"] for i in wheels], [y[f"wheel[{i}].Fy"] for i in wheels])
-            s["peak_Fn"] = max(s["peak_Fn"], float(Fn.max()))
-            loaded = Fn > 5.0
-            if loaded.any():
-                s["peak_ratio"] = max(s["peak_ratio"], float((Ft[loaded] / Fn[loaded]).max()))
-            s["max_slip"] = max(s["max_slip"], float(np.abs([y[f"wheel[{i}].slip"] for i in wheels]).max()))
-            s["final_x"], s["t_end"] = float(y["body.x"]), t
-            if any(abs(y[a]) > TIPPED for a in attitude):
-                s["reason"] = f"tipped over: |body attitude| > {TIPPED} rad at t = {t:g}"
-                break
-            if min(y[f"wheel[{i}].cx"] for i in wheels) > goal:
-                s["climbed"], s["t_over"] = 1, t
-                break
-            x_hist.append(y["body.x"])
-            back = int(round(STUCK_TIME / SAMPLE))
-            if len(x_hist) > back and x_hist[-1] - x_hist[-1 - back] < STUCK_DX:
-                s["reason"] = f"stuck: body.x advanced less than {STUCK_DX} m in {STUCK_TIME} s"
-                break
-            if k == n:
-                break
-            if time.perf_counter() - wall > timeout:
-                s["status"], s["reason"] = "timeout", f"run took more than {timeout:g} s of wall time at t = {t:g}"
-                break
-            tau = ctrl(y["body.vx"])
-            fmu.set({f"tau[{i}]": tau for i in wheels})
-            if not fmu.step((k + 1) * SAMPLE):
-                s["status"] = fmu.status
-                s["reason"] = (fmu.messages[-1] if fmu.messages else "the FMU refused the step")[:300]
-                break
+        if not speed_loop(fmu, stop_time, names, summarize, ctrl):
+            s["status"] = fmu.status
+            s["reason"] = (fmu.messages[-1] if fmu.messages else "the FMU refused the step")[:300]
     except Exception as e:                        # an FMU call that raised (e.g. fmi2Error in a setter)
         s["status"], s["reason"] = "error", f"{type(e).__name__}: {e}"[:300]
     finally:
