@@ -125,7 +125,11 @@ class FastIO:
         self.int_buf = (ctypes.c_int * len(self.int_idx))()
         self.write_vr = (ctypes.c_uint * len(write))(*[fmu.vars[n].valueReference for n in write])
         self.write_buf = (ctypes.c_double * len(write))()
-        self.out = np.empty(len(read))
+        # numpy views of the buffers (no copy per call); all-Real reads in order are one copy of the view
+        self.real_view = np.ctypeslib.as_array(self.real_buf) if self.real_idx else np.empty(0)
+        self.int_view = np.ctypeslib.as_array(self.int_buf) if self.int_idx else np.empty(0, dtype=np.intc)
+        self.all_real = not self.int_idx
+        self.n = len(read)
 
     def _ok(self, status: int) -> bool:
         if status > 1:                                      # worse than fmi2Warning
@@ -141,9 +145,12 @@ class FastIO:
         if self.int_idx and not self._ok(self.dll.fmi2GetInteger(self.comp, self.int_vr, len(self.int_idx),
                                                                   self.int_buf)):
             return None
-        self.out[self.real_idx] = self.real_buf
-        self.out[self.int_idx] = self.int_buf
-        return self.out.copy()
+        if self.all_real:
+            return self.real_view.copy()
+        out = np.empty(self.n)
+        out[self.real_idx] = self.real_view
+        out[self.int_idx] = self.int_view
+        return out
 
     def write(self, values) -> bool:
         self.write_buf[:] = values
