@@ -6,6 +6,8 @@ import sys
 import time
 from pathlib import Path
 
+from cedra.contract import SOLVER_METHODS
+
 
 def cmd_build(args):
     from cedra.models.controller import CONTROLLERS, controller_spec
@@ -117,7 +119,8 @@ def main(argv=None):
     be.add_argument("--side-by-side", action="store_true",
                     help="only the MuJoCo side-by-side table (the paper's 15 s run)")
     be.add_argument("--step-cost", action="store_true",
-                    help="only the cost of one rodas4 step, dense against reduced (Schur) stage solve")
+                    help="only the cost of one implicit step: rodas4 dense against reduced (Schur) stage solve, "
+                         "ros34pw2")
     r = sub.add_parser("report", help="work-precision or stability report")
     r.add_argument("which", choices=["precision", "stability", "defaults"])
     r.add_argument("--build", default="build")
@@ -126,7 +129,10 @@ def main(argv=None):
     r.add_argument("--quiet", action="store_true", help="no per-run lines, no progress (the report and summary only)")
     r.add_argument("--scene", action="append", default=None,
                    help="precision, defaults: only this scene of the report (repeatable)")
-    r.add_argument("--tol", type=float, help="defaults: compare rodas4 at this tolerance instead of the scene's defaults")
+    r.add_argument("--tol", type=float, help="defaults: compare rodas4 (or --method) at this tolerance instead of the "
+                                            "scene's defaults")
+    r.add_argument("--method", choices=list(SOLVER_METHODS),
+                   help="defaults: compare this solver (at the scene's tolerance, or --tol) instead of the defaults")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
     from cedra.run.watch import add_parser as add_watch_parser

@@ -4,10 +4,12 @@ loop, equal torques) - against the same run at rodas4 tol 1e-9 (the tight run). 
 normal force of each run, their relative difference, and the largest difference of any wheel's normal force at
 any communication point relative to the tight run's peak.
 
-    python -m cedra report defaults [--scene NAME ...] [--tol TOL] [--build build] [--out out/report] [--quiet]
+    python -m cedra report defaults [--scene NAME ...] [--tol TOL] [--method NAME] [--build build] [--out out/report]
+                                    [--quiet]
 
-(--tol: the "default" run at rodas4 with this tolerance instead of the scene's defaults: what a looser default would
-give.)
+(--tol, --method: the "default" run with this tolerance (rodas4 unless --method) or this method (the scene's
+tolerance unless --tol) instead of the scene's defaults: what another setting would give, e.g. --method ros34pw2
+--tol 1e-4, the W-method's fast setting.)
 
 writes <out>/defaults.md and prints the table. Criterion (issue 13): peak normal forces within 1e-3 relative.
 """
@@ -19,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cedra.contract import SOLVER_METHODS
 from cedra.models.scene import load_shipped, shipped
 from cedra.reports.common import fmt, fmu_path, md_table
 from cedra.run.progress import Progress
@@ -48,14 +51,17 @@ def _fn(names, rows):
     return rows[:, cols]
 
 
-def compare(name: str, build="build", tol: float | None = None) -> Row:
+def compare(name: str, build="build", tol: float | None = None, method: str | None = None) -> Row:
     from cedra.run.simulate import run_bump
     scene = load_shipped(name)
     t_end = min(scene.stop_time, MAX_T_END)
     path = fmu_path(build, name)
     s = scene.solver
-    setting = f"{s.get('method', 'dopri5')} tol {s.get('tol', 1e-6):g}" if tol is None else f"rodas4 tol {tol:g}"
-    instead = {} if tol is None else {"solver.method": 2, "solver.tol": tol}
+    if tol is None and method is None:
+        setting, instead = f"{s.get('method', 'dopri5')} tol {s.get('tol', 1e-6):g}", {}
+    else:
+        m, t = method or "rodas4", s.get("tol", 1e-6) if tol is None else tol
+        setting, instead = f"{m} tol {t:g}", {"solver.method": SOLVER_METHODS.index(m), "solver.tol": t}
     c0 = time.process_time()
     names, rows, _, info = run_bump(path, t_end, instead)
     c1 = time.process_time()
@@ -93,7 +99,7 @@ def main(args) -> int:
     rows = []
     progress = Progress(len(names), "report defaults", unit="scenes", quiet=quiet)
     for k, name in enumerate(names):
-        r = compare(name, build, getattr(args, "tol", None))
+        r = compare(name, build, getattr(args, "tol", None), getattr(args, "method", None))
         rows.append(r)
         if not quiet:
             print(f"{name:14s} {r.setting:18s} peak Fn {r.peak:9.3f} N (tight {r.peak_tight:9.3f} N): rel. diff "
@@ -102,6 +108,7 @@ def main(args) -> int:
         progress(k + 1)
     progress.done()
     cmd = "python -m cedra report defaults" + "".join(f" --scene {n}" for n in getattr(args, "scene", None) or []) \
-        + (f" --tol {args.tol:g}" if getattr(args, "tol", None) else "")
+        + (f" --tol {args.tol:g}" if getattr(args, "tol", None) else "") \
+        + (f" --method {args.method}" if getattr(args, "method", None) else "")
     print(f"wrote {write(rows, Path(getattr(args, 'out', 'out/report')), cmd)}")
     return 0 if all(r.ok and r.peak_rel <= CRITERION for r in rows) else 1

@@ -1,0 +1,37 @@
+"""`python -m cedra report defaults` (issue 13 item 6; --method since session 7): a scene's run at its default
+settings, or at another method / tolerance, against the same closed loop at rodas4 tol 1e-9."""
+from types import SimpleNamespace
+
+import pytest
+
+from cedra.reports import defaults as D
+from test_report_precision import scene_fmu
+
+
+@pytest.fixture(scope="module")
+def build(tmp_path_factory):
+    return scene_fmu("flat3d", tmp_path_factory).parent
+
+
+def test_the_tight_settings_against_themselves_differ_by_nothing(build):
+    r = D.compare("flat3d", build, tol=1e-9, method="rodas4")
+    assert r.ok and r.setting == "rodas4 tol 1e-09"
+    assert r.peak == r.peak_tight and r.peak_rel == 0.0 and r.dev_rel == 0.0
+
+
+def test_defaults_and_the_w_method_on_flat_ground(build):
+    d = D.compare("flat3d", build)
+    assert d.ok and d.setting == "rodas4 tol 1e-06"
+    assert 0 < d.peak_rel <= D.CRITERION and d.peak == pytest.approx(d.peak_tight, rel=1e-5)
+    w = D.compare("flat3d", build, tol=1e-4, method="ros34pw2")
+    assert w.ok and w.setting == "ros34pw2 tol 0.0001"
+    assert w.peak_rel <= D.CRITERION and w.peak != d.peak          # a different solver ran, and it converged
+
+
+def test_main_writes_the_command_with_the_method(build, tmp_path):
+    args = SimpleNamespace(scene=["flat3d"], build=str(build), out=str(tmp_path), tol=1e-4, method="ros34pw2",
+                           quiet=True)
+    assert D.main(args) == 0
+    text = (tmp_path / "defaults.md").read_text()
+    assert "`python -m cedra report defaults --scene flat3d --tol 0.0001 --method ros34pw2`" in text
+    assert "| flat3d | 10 s | ros34pw2 tol 0.0001 |" in text
