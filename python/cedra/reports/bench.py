@@ -11,9 +11,10 @@ Figures are printed, never asserted on.
 Then, when the optional dependency mujoco is importable (`pip install -e '.[bench]'`, ./build.sh does it), the
 MuJoCo side by side of issue 13 (`side_by_side`): the paper's 15 s run under the spec section 10 speed controller
 on MuJoCo (cedra.reports.mujoco_model) on the bump as a height field (1 cm cells), on a plane and on the hills3d grid as
-a height field, at dt 1, 0.5 and 0.2 ms, and through the FMUs bump2d, bump3d, flat3d and hills3d: CPU time
-(time.process_time), real-time factor, x at 6 s, peak normal force, steps, and the ratios MuJoCo CPU / FMU CPU
-of the matching pairs. `--quick`: only that table, 1 s runs (the tests); `--side-by-side`: only that table.
+a height field, at dt 1, 0.5 and 0.2 ms, and through the FMUs bump2d, bump3d, flat3d and hills3d, each at its scene
+defaults, at FMU_SETTINGS and at the REFERENCE settings: CPU time (time.process_time), real-time factor, x at 6 s,
+peak normal force, steps, each FMU row's peak against its reference, and the ratios MuJoCo CPU / FMU CPU of the
+matching pairs at the defaults and at the fastest setting whose forces converged (peak within CONVERGED). `--quick`: only that table, 1 s runs (the tests); `--side-by-side`: only that table.
 """
 from __future__ import annotations
 
@@ -433,8 +434,9 @@ def print_side_by_side(build: Path, stop_time: float, dts=MUJOCO_DTS, quiet=Fals
     import mujoco
     print(f"\nMuJoCo side by side (issue 13): the paper's run, {stop_time:g} s, the spec section 10 speed "
           f"controller every 0.01 s; MuJoCo {mujoco.__version__} (cedra.reports.mujoco_model, Euler, settled "
-          f"{mm.SETTLE:g} s untimed), FMUs at their scene defaults; CPU = time.process_time; peak Fn = the largest "
-          f"wheel normal force at the 0.01 s samples")
+          f"{mm.SETTLE:g} s untimed), FMUs at their scene defaults (\"FMU <scene>\"), at faster settings and at "
+          f"{REFERENCE[0]} (the reference each row's peak Fn is compared with); CPU = time.process_time; peak Fn = "
+          f"the largest wheel normal force at the 0.01 s samples")
     rows = side_by_side(build, stop_time, dts, log=(lambda *a: None) if quiet else print, quiet=quiet)
     print("\n".join(side_by_side_table(rows, stop_time)))
     return 0 if all(r is not None and r.ok for r in rows.values()) else 1
