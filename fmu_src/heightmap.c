@@ -96,6 +96,21 @@ static int fit(heightmap *hm, const double *z, heightmap_alloc alloc, heightmap_
     for (int k = 0; k < mx; k++) fit_line(tmp + k, mx, hm->coef + k, mx, ny, work);
     fr(tmp);
     fr(work);
+    hm->cellmax = (double *)alloc((size_t)(nx - 1) * (size_t)(ny - 1), sizeof(double));
+    hm->cellmin = (double *)alloc((size_t)(nx - 1) * (size_t)(ny - 1), sizeof(double));
+    if (!hm->cellmax || !hm->cellmin) return 1;
+    for (int j = 0; j < ny - 1; j++)
+        for (int i = 0; i < nx - 1; i++) {
+            double hi = hm->coef[(size_t)j * mx + i], lo = hi;
+            for (int jj = j; jj < j + 4; jj++)
+                for (int ii = i; ii < i + 4; ii++) {
+                    double v = hm->coef[(size_t)jj * mx + ii];
+                    if (v > hi) hi = v;
+                    if (v < lo) lo = v;
+                }
+            hm->cellmax[(size_t)j * (nx - 1) + i] = hi;
+            hm->cellmin[(size_t)j * (nx - 1) + i] = lo;
+        }
     return 0;
 }
 
@@ -166,7 +181,9 @@ done:
 
 void heightmap_release(heightmap *hm, heightmap_free_fn fr) {
     if (hm->coef) fr(hm->coef);
-    hm->coef = NULL;
+    if (hm->cellmax) fr(hm->cellmax);
+    if (hm->cellmin) fr(hm->cellmin);
+    hm->coef = hm->cellmax = hm->cellmin = NULL;
 }
 
 /* ---------------------------------------------------------------------------------------------- evaluating */
@@ -369,14 +386,14 @@ int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J
         if (u0 >= 0.0 && u1 <= hm->nx - 1 && v0 >= 0.0 && v1 <= hm->ny - 1) {
             int i0 = cell(u0, hm->nx), i1 = cell(u1, hm->nx), j0 = cell(v0, hm->ny), j1 = cell(v1, hm->ny);
             if ((i1 - i0 + 4) * (j1 - j0 + 4) <= 64) {
-                double lo = hm->coef[(size_t)j0 * (hm->nx + 2) + i0], hi = lo;
-                for (int jj = j0; jj <= j1 + 3; jj++) {
-                    const double *row = hm->coef + (size_t)jj * (hm->nx + 2);
-                    for (int ii = i0; ii <= i1 + 3; ii++) {
-                        if (row[ii] > hi) hi = row[ii];
-                        if (row[ii] < lo) lo = row[ii];
+                /* the coefficients of cells i0..i1 x j0..j1 are rows j0..j1+3 x columns i0..i1+3 */
+                const int mc = hm->nx - 1;
+                double lo = hm->cellmin[(size_t)j0 * mc + i0], hi = hm->cellmax[(size_t)j0 * mc + i0];
+                for (int jj = j0; jj <= j1; jj++)
+                    for (int ii = i0; ii <= i1; ii++) {
+                        if (hm->cellmax[(size_t)jj * mc + ii] > hi) hi = hm->cellmax[(size_t)jj * mc + ii];
+                        if (hm->cellmin[(size_t)jj * mc + ii] < lo) lo = hm->cellmin[(size_t)jj * mc + ii];
                     }
-                }
                 hmax = hi + 1e-12 * (fabs(hi) + fabs(lo));     /* the basis sums to 1 up to rounding */
                 prune = 1;
             }
@@ -386,8 +403,9 @@ int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J
     for (int kk = 0; kk < 13; kk++) {
         int k = ORDER[kk], ka = k < 0 ? -k : k;
         double b = k * pi / 12, cb = COS[ka], sb = k < 0 ? -SIN[ka] : SIN[ka], p[3], h;
-        for (int i = 0; i < 3; i++) p[i] = c[i] + R * (cb * r1[i] + sb * r2[i]);
+        p[2] = c[2] + R * (cb * r1[2] + sb * r2[2]);            /* the height first: enough to prune */
         if (prune && kk > 0 && hmax - p[2] < best_g) continue;
+        for (int i = 0; i < 2; i++) p[i] = c[i] + R * (cb * r1[i] + sb * r2[i]);
         if (eval_h(hm, p[0], p[1], &h)) {
             bad[0] = p[0], bad[1] = p[1];
             return 1;

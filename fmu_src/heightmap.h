@@ -20,6 +20,9 @@ typedef struct {
     int nx, ny;
     double x0, y0, dx, dy;
     double *coef;           /* (nx + 2) * (ny + 2) B-spline coefficients, X fastest */
+    /* (nx - 1) * (ny - 1), X fastest: the largest / smallest of the 16 coefficients a cell's patch is made of (the
+     * rim search's bound on the height over a wheel's square, looked up per cell instead of scanned per search) */
+    double *cellmax, *cellmin;
     char msg[256];          /* why the last evaluation failed (a point outside the grid) */
 } heightmap;
 
