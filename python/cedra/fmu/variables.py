@@ -146,7 +146,8 @@ def _plant_rows(spec: ModelSpec, add) -> None:
         kind="settle", index=0)
     sd = solver_defaults(spec)
     add(name="solver.method", causality="parameter", variability="fixed", initial="exact", start=sd["method"],
-        unit=None, description="embedded solver: 0 RK4 (fixed step h_max), 1 DOPRI5, 2 RODAS4", type="Integer",
+        unit=None, description="embedded solver: 0 RK4 (fixed step h_max), 1 DOPRI5, 2 RODAS4, 3 ROS34PW2 "
+                                 "(Rosenbrock-W: keeps its Jacobian over steps)", type="Integer",
         kind="solver", index=0, min=0, max=len(SOLVER_METHODS) - 1)
     add(name="solver.tol", causality="parameter", variability="fixed", initial="exact", start=sd["tol"],
         unit="1", description="relative and absolute tolerance of the adaptive solvers (> 0); the importer's "
