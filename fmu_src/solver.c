@@ -307,26 +307,22 @@ void solver_stage_solve(int n, int n2, double fac, const double *J, const double
 #define RO_M(w, n) ((w) + 10 * (size_t)(n) + (size_t)(n) * (n))
 #define RO_W(w, n) ((w) + 10 * (size_t)(n) + 2 * (size_t)(n) * (n))
 
-/* Data at the start of a RODAS4 step: F, the Jacobian and F_t at (t, x); kept when a step is rejected (a retry
- * from the same point, whatever its h, refactors only the n2 x n2 stage matrix: the Jacobian is reused).
- * RODAS4 does not reuse a Jacobian ACROSS accepted steps: its order conditions assume the exact Jacobian at the
- * step's start (it is not a W-method). The method that keeps one is ROS34PW2 below (solver.method 3). */
-static int rodas4_start(int n, const solver_structure *sp, const double *x, double t, double tmax,
-                        solver_rhs_fn rhs, solver_jac_fn jac, void *ctx, double *w, solver_stats *st) {
-    double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *tmp = RO_XNEW(w, n), *J = RO_J(w, n);
+/* The Jacobian at (t, x) into J (with mass rows, M beside it at J + n n) and dF/dt into f_t, f0 = F(t, x) known.
+ * dF/dt by a forward difference, as rodas.f does for a non-autonomous F without DFX (IDFX=0), at the price of one F
+ * per step: without the d_i terms the methods drop to order 1 in an explicit time dependence. For an autonomous F it
+ * is exactly 0 (solver_structure.autonomous: not evaluated). Backward if t + delta would pass t1, where inputs end. */
+static int jacobian_at(int n, const solver_structure *sp, const double *x, double t, double tmax, solver_rhs_fn rhs,
+                       solver_jac_fn jac, void *ctx, double *w, double *J, solver_stats *st) {
+    double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *tmp = RO_XNEW(w, n);
     int ev;
-    if ((ev = eval(rhs, ctx, t, x, f0, n, st))) return ev;
     st->jac_evals++;
     if (jac(ctx, t, x, f0, J)) return EV_JAC_FAILED;
     if (!all_finite(n * n, J)) return EV_JAC_NONFINITE;
-    if (sp->mass_rows && !all_finite(sp->n2 * sp->n2, RO_M(w, n))) return EV_JAC_NONFINITE;
+    if (sp->mass_rows && !all_finite(sp->n2 * sp->n2, J + (size_t)n * n)) return EV_JAC_NONFINITE;
     if (sp->autonomous) {
         for (int i = 0; i < n; i++) ft[i] = 0.0;
         return EV_OK;
     }
-    /* dF/dt by a forward difference, as rodas.f does for a non-autonomous F without DFX (IDFX=0), at the price
-     * of one F per step: without the d_i terms the method drops to order 1 in an explicit time dependence. For
-     * an autonomous F the difference is exactly 0. Backward if t + delta would pass t1, where inputs end. */
     double delt = sqrt(2.220446049250313e-16 * fmax(1e-5, fabs(t)));
     if (t + delt > tmax) delt = -delt;
     if ((ev = eval(rhs, ctx, t + delt, x, tmp, n, st))) return ev;
@@ -334,8 +330,19 @@ static int rodas4_start(int n, const solver_structure *sp, const double *x, doub
     return EV_OK;
 }
 
-static int rodas4_step(int n, const solver_structure *sp, const double *x, double t, double h, double tend, solver_rhs_fn rhs,
-                       void *ctx, double *w, solver_stats *st) {
+/* Data at the start of a RODAS4 step: F, the Jacobian and F_t at (t, x); kept when a step is rejected (a retry
+ * from the same point, whatever its h, refactors only the n2 x n2 stage matrix: the Jacobian is reused).
+ * RODAS4 does not reuse a Jacobian ACROSS accepted steps: its order conditions assume the exact Jacobian at the
+ * step's start (it is not a W-method). The method that keeps one is ROS34PW2 below (solver.method 3). */
+static int rodas4_start(int n, const solver_structure *sp, const double *x, double t, double tmax,
+                        solver_rhs_fn rhs, solver_jac_fn jac, void *ctx, double *w, solver_stats *st) {
+    int ev;
+    if ((ev = eval(rhs, ctx, t, x, RO_F0(w, n), n, st))) return ev;
+    return jacobian_at(n, sp, x, t, tmax, rhs, jac, ctx, w, RO_J(w, n), st);
+}
+
+static int rodas4_step(int n, const solver_structure *sp, const double *x, double t, double h, double tend,
+                       solver_rhs_fn rhs, void *ctx, double *w, solver_stats *st) {
     double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *k1 = RO_K(w, n, 1), *k2 = RO_K(w, n, 2), *k3 = RO_K(w, n, 3),
            *k4 = RO_K(w, n, 4), *k5 = RO_K(w, n, 5), *k6 = RO_K(w, n, 6), *y = RO_Y(w, n), *dy = RO_XNEW(w, n),
            *J = RO_J(w, n), *W = RO_W(w, n);
@@ -408,26 +415,12 @@ static const double rw_e1 = 2.7774994764796900e-01, rw_e2 = -1.4032398951759988e
 /* a kept Jacobian is renewed after this many steps even if no step was rejected */
 #define W_MAX_AGE 50
 
-/* the Jacobian (and dF/dt) at (t, x), f0 = F(t, x) known, into J (M beside it with mass rows); jac_age = 1 */
+/* a fresh Jacobian (and dF/dt) for ROS34PW2, f0 = F(t, x) known: jac_age = 1 (0 if it failed) */
 static int w_fresh_jacobian(int n, const solver_structure *sp, const double *x, double t, double tmax,
                             solver_rhs_fn rhs, solver_jac_fn jac, void *ctx, double *w, double *J, solver_stats *st) {
-    double *f0 = RO_F0(w, n), *ft = RO_FT(w, n), *tmp = RO_XNEW(w, n);
-    int ev;
-    st->jac_evals++;
-    st->jac_age = 0;
-    if (jac(ctx, t, x, f0, J)) return EV_JAC_FAILED;
-    if (!all_finite(n * n, J)) return EV_JAC_NONFINITE;
-    if (sp->mass_rows && !all_finite(sp->n2 * sp->n2, J + (size_t)n * n)) return EV_JAC_NONFINITE;
-    st->jac_age = 1;
-    if (sp->autonomous) {
-        for (int i = 0; i < n; i++) ft[i] = 0.0;
-        return EV_OK;
-    }
-    double delt = sqrt(2.220446049250313e-16 * fmax(1e-5, fabs(t)));   /* as rodas4_start */
-    if (t + delt > tmax) delt = -delt;
-    if ((ev = eval(rhs, ctx, t + delt, x, tmp, n, st))) return ev;
-    for (int i = 0; i < n; i++) ft[i] = (tmp[i] - f0[i]) / delt;
-    return EV_OK;
+    int ev = jacobian_at(n, sp, x, t, tmax, rhs, jac, ctx, w, J, st);
+    st->jac_age = ev == EV_OK;
+    return ev;
 }
 
 /* F at the step's start, and the Jacobian: the kept one while it may be (autonomous F, younger than W_MAX_AGE
@@ -501,9 +494,10 @@ static double initial_step(int n, const double *x, double t, const double *f0, d
     return fmin(fmin(100 * h, h1), hmax);
 }
 
-static int adaptive(const solver_settings *s, int n, const solver_structure *sp, double *x, double t0, double t1, solver_rhs_fn rhs,
-                    solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate, solver_post_fn post,
-                    void *ctx, double *w, double *keep, solver_stats *st, char *msg, size_t msg_len) {
+static int adaptive(const solver_settings *s, int n, const solver_structure *sp, double *x, double t0, double t1,
+                    solver_rhs_fn rhs, solver_jac_fn jac, solver_accept_fn accept, solver_locate_fn locate,
+                    solver_post_fn post, void *ctx, double *w, double *keep, solver_stats *st, char *msg,
+                    size_t msg_len) {
     const int dopri = s->method == SOLVER_DOPRI5, wmeth = s->method == SOLVER_ROS34PW2;
     const char *name = dopri ? "dopri5" : wmeth ? "ros34pw2" : "rodas4";
     /* The error estimate is O(h^(q+1)), q the lower of the two orders: 4 for DOPRI5, 3 for RODAS4, 2 for
@@ -525,8 +519,8 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
      * cut (h_uncut) is restored after it is accepted, so that a switch costs no slow regrowth of h */
     int located = 0;
     double h_uncut = 0;
-    /* The step-size proposal after this call's first accepted step (no growth if rejections preceded it). A call starts where the importer
-     * may have changed the inputs (the main job's controller changes the torques every 0.01 s); the jump excites
+    /* The step-size proposal after this call's first accepted step (no growth if rejections preceded it). A call
+     * starts where the importer may have changed the inputs (the main job's controller changes the torques every 0.01 s); the jump excites
      * the wheels' fast slip transients (friction with v_eps = 0.01 m/s), which only a short first step resolves.
      * Carrying the previous call's last proposal into that restart cost 7-8 rejected steps per call on the bump
      * (measured: the rejections sat at the communication points, with the error estimate falling like h). The
@@ -544,8 +538,8 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
                          : rodas4_start(n, sp, x, t, t1, rhs, jac, ctx, w, st);
         have_start = ev == EV_OK;
         /* scratch for the probe: k4, k5 (DOPRI5) or k2, k3 (RODAS4, ROS34PW2) - never f0, f_t, J */
-        h = have_start ? initial_step(n, x, t, f0, tol, hmax, t1 - t, dopri ? 5 : wmeth ? 3 : 4, rhs, ctx, w + 3 * (size_t)n,
-                                      w + 4 * (size_t)n, st)
+        h = have_start ? initial_step(n, x, t, f0, tol, hmax, t1 - t, dopri ? 5 : wmeth ? 3 : 4, rhs, ctx,
+                                      w + 3 * (size_t)n, w + 4 * (size_t)n, st)
                        : fmin(hmax, 1e-6 * fmax(1.0, t1 - t0));
     }
 
@@ -813,17 +807,11 @@ int solver_integrate_post(const solver_settings *s, int n, double *x, double t0,
     if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, post, ctx, work, stats, msg, msg_len);
     solver_structure sp = {0, 0, 0};
     if (structure) sp = *structure;
-    if (sp.n2 < 0 || 2 * sp.n2 > n) {
-        /* rows premultiplied by M cannot be read without the structure they belong to */
-        if (sp.mass_rows) {
-            put_msg(msg, msg_len, "solver: mass rows without a second-order structure (n2 = %d, n = %d)", sp.n2, n);
-            return 1;
-        }
-        sp.n2 = 0;   /* not a structure x can have: none */
-    }
-    if (sp.n2 == 0 && sp.mass_rows) {
-        put_msg(msg, msg_len, "solver: mass rows without a second-order structure (n2 = 0)");
+    /* rows premultiplied by M cannot be read without the structure they belong to */
+    if (sp.mass_rows && (sp.n2 <= 0 || 2 * sp.n2 > n)) {
+        put_msg(msg, msg_len, "solver: mass rows without a second-order structure (n2 = %d, n = %d)", sp.n2, n);
         return 1;
     }
+    if (sp.n2 < 0 || 2 * sp.n2 > n) sp.n2 = 0;   /* not a structure x can have: none */
     return adaptive(s, n, &sp, x, t0, t1, rhs, jac, accept, locate, post, ctx, work, keep, stats, msg, msg_len);
 }

@@ -302,7 +302,8 @@ def _value_cases(md) -> list[Case]:
         (("ctrl.period", 0.0), ("ctrl.period", -0.01), ("ctrl.period", INF), ("ctrl.tau_max", -1.0))
     for name, value in reals:
         cases.append(set_real(name, value))
-    integers = (("solver.method", -1), ("solver.method", len(SOLVER_METHODS)), ("solver.max_steps", 0), ("solver.max_steps", -5)) \
+    integers = (("solver.method", -1), ("solver.method", len(SOLVER_METHODS)), ("solver.max_steps", 0),
+                ("solver.max_steps", -5)) \
         if plant else (("ctrl.mode", -1), ("ctrl.mode", 2))
     for name, value in integers:
         vr = vs[name].valueReference

@@ -149,7 +149,8 @@ def build_fmu(spec: ModelSpec, build_dir, extra_cflags=()) -> Path:
     # compile
     objects = []
     for f in c_files:
-        flags = CFLAGS + list(extra_cflags) + (GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="] if f == GENERATED_C else [])
+        relax = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="] if f == GENERATED_C else []
+        flags = CFLAGS + list(extra_cflags) + relax
         o = obj / (Path(f).stem + ".o")
         _run([CC, *flags, "-I", str(src), "-c", str(src / f), "-o", str(o)], cwd=tree)
         objects.append(str(o))

@@ -14,7 +14,8 @@ on MuJoCo (cedra.reports.mujoco_model) on the bump as a height field (1 cm cells
 a height field, at dt 1, 0.5 and 0.2 ms, and through the FMUs bump2d, bump3d, flat3d and hills3d, each at its scene
 defaults, at FMU_SETTINGS and at the REFERENCE settings: CPU time (time.process_time), real-time factor, x at 6 s,
 peak normal force, steps, each FMU row's peak against its reference, and the ratios MuJoCo CPU / FMU CPU of the
-matching pairs at the defaults and at the fastest setting whose forces converged (peak within CONVERGED). `--quick`: only that table, 1 s runs (the tests); `--side-by-side`: only that table.
+matching pairs at the defaults and at the fastest setting whose forces converged (peak within CONVERGED).
+`--quick`: only that table, 1 s runs (the tests); `--side-by-side`: only that table.
 """
 from __future__ import annotations
 
@@ -368,14 +369,15 @@ def side_by_side(build: Path, stop_time=SIDE_STOP, dts=MUJOCO_DTS, log=print, qu
             progress(len(rows))
     for name in FMU_RUNS:
         path = Path(build) / f"{name}.fmu"
+        ref_label = f"FMU {name} {REFERENCE[0]} (reference)"
         runs = {f"FMU {name}": {}, **{f"FMU {name} {k}": v for k, v in FMU_SETTINGS.items()},
-                f"FMU {name} {REFERENCE[0]} (reference)": REFERENCE[1]}
+                ref_label: REFERENCE[1]}
         for label, settings in runs.items():
             rows[label] = fmu_closed_loop(path, stop_time, settings, label=label) if path.exists() else None
             if rows[label] is not None:
                 log(f"  ... {label}: {rows[label].cpu:.2f} s CPU")
             progress(len(rows))
-        ref = rows[label]
+        ref = rows[ref_label]
         for label in runs:
             r = rows[label]
             if r is not None and ref is not None and ref.ok:

@@ -116,7 +116,8 @@ class FastIO:
         types = [fmu.vars[n].type for n in read]
         bad = sorted({t for t in types if t not in ("Real", "Integer")})
         if bad or any(fmu.vars[n].type != "Real" for n in write):
-            raise ValueError(f"FastIO reads Real and Integer and writes Real variables (got {bad or 'a non-Real input'})")
+            raise ValueError("FastIO reads Real and Integer and writes Real variables "
+                             f"(got {bad or 'a non-Real input'})")
         self.real_idx = [k for k, t in enumerate(types) if t == "Real"]
         self.int_idx = [k for k, t in enumerate(types) if t == "Integer"]
         self.real_vr = (ctypes.c_uint * len(self.real_idx))(*[fmu.vars[read[k]].valueReference for k in self.real_idx])

@@ -45,7 +45,8 @@ def recorded(fmu: RoverFMU) -> list[str]:
     return [n for n in names if fmu.has(n)]
 
 
-def speed_loop(fmu: RoverFMU, stop_time, names: list[str], on_sample, controller: SpeedController | None = None) -> bool:
+def speed_loop(fmu: RoverFMU, stop_time, names: list[str], on_sample,
+               controller: SpeedController | None = None) -> bool:
     """The main job's closed loop on a started FMU (spec section 10): every SAMPLE s read `names` (body.vx among
     them), compute the torque, hand (k, t, y, tau) to on_sample, which may return True to stop here, then set all
     six tau[i] and step. The calls go through FastIO. Returns False if the FMU refused a call (fmu.status and
