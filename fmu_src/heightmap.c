@@ -348,21 +348,29 @@ static void cross3(const double *a, const double *b, double *c) {
 
 #define RIM_NEWTON 4
 
-int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J, double bad[2]) {
+/* What the search leaves for its Jacobian: the frame under the center and the final point's terrain data. */
+typedef struct {
+    double e[6];                                         /* p, h(p), h_X(p), h_Y(p) */
+    double H0[3], n0[3], mn, na, tn, r1[3], r2[3];       /* the frame: Hessian and normal under the center */
+    double cb, sb, dp[3], g[2], H[3], d2;                /* the final beta: cos, sin, p', gradient, Hessian, g'' */
+} rim_final;
+
+static int rim_search(const heightmap *hm, const double x[7], rim_final *f, double bad[2]) {
     const double *c = x, *a = x + 3, R = x[6];
-    double h0, g0[2], H0[3];
-    if (eval_h2(hm, c[0], c[1], &h0, g0, H0)) {
+    double h0, g0[2];
+    if (eval_h2(hm, c[0], c[1], &h0, g0, f->H0)) {
         bad[0] = c[0], bad[1] = c[1];
         return 1;
     }
     /* the frame: n0 the unit normal under the center, t its part perpendicular to the axle, r1 = -t/|t|,
      * r2 = a x r1 (contact.rim_point's formulas, operation for operation where it matters) */
-    double m[3] = {-g0[0], -g0[1], 1.0}, mn = sqrt(dot3(m, m)), n0[3], t[3], r1[3], r2[3];
-    for (int k = 0; k < 3; k++) n0[k] = m[k] / mn;
-    double na = dot3(n0, a);
-    for (int k = 0; k < 3; k++) t[k] = n0[k] - na * a[k];
-    double tn = sqrt(dot3(t, t));
-    for (int k = 0; k < 3; k++) r1[k] = -(t[k] / tn);
+    double m[3] = {-g0[0], -g0[1], 1.0}, t[3], *n0 = f->n0, *r1 = f->r1, *r2 = f->r2;
+    f->mn = sqrt(dot3(m, m));
+    for (int k = 0; k < 3; k++) n0[k] = m[k] / f->mn;
+    f->na = dot3(n0, a);
+    for (int k = 0; k < 3; k++) t[k] = n0[k] - f->na * a[k];
+    f->tn = sqrt(dot3(t, t));
+    for (int k = 0; k < 3; k++) r1[k] = -(t[k] / f->tn);
     cross3(a, r1, r2);
     /* 13 samples of g(beta) = h(p) - p_Z on the lower half of the rim: beta = 0 first, then k = -6..6 */
     static const int ORDER[13] = {0, -6, -5, -4, -3, -2, -1, 1, 2, 3, 4, 5, 6};
@@ -414,7 +422,7 @@ int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J
         if (kk == 0 || g > best_g) best_b = b, best_g = g;
     }
     /* Newton on g'(beta) = 0, never toward a minimum (a step only where g'' < 0); then the final point */
-    double b = best_b, p[3], dp[3], h, g[2], H[3], d1 = 0.0, d2 = 0.0, cb = 0.0, sb = 0.0;
+    double b = best_b, p[3], h, *dp = f->dp, *g = f->g, *H = f->H, d1 = 0.0, d2 = 0.0, cb = 0.0, sb = 0.0;
     for (int it = 0; it <= RIM_NEWTON; it++) {
         cb = cos(b), sb = sin(b);
         for (int i = 0; i < 3; i++) {
@@ -437,14 +445,20 @@ int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J
         if (next == b) break;
         b = next;
     }
-    e[0] = p[0], e[1] = p[1], e[2] = p[2], e[3] = h, e[4] = g[0], e[5] = g[1];
-    if (!J) return 0;
-    /* The Jacobian d e / d x, x = [c, a, R]. At the final beta where g'' < 0 the point is the rim's tangency
-     * point (g'(beta) = 0): the implicit function theorem gives d beta = -(d g' at fixed beta) / g'', so p's
-     * derivative is the derivative of the stationary point itself, whatever frame beta is measured in (exact
-     * when Newton has converged, which 4 steps from the best of 13 samples do to rounding on smooth ground).
-     * Where g'' >= 0 no step was taken: beta is a sample, constant, and p moves with the frame (r1 follows the
-     * normal under the center: its Hessian). */
+    f->cb = cb, f->sb = sb, f->d2 = d2;
+    f->e[0] = p[0], f->e[1] = p[1], f->e[2] = p[2], f->e[3] = h, f->e[4] = g[0], f->e[5] = g[1];
+    return 0;
+}
+
+/* The Jacobian d e / d x, x = [c, a, R]. At the final beta where g'' < 0 the point is the rim's tangency
+ * point (g'(beta) = 0): the implicit function theorem gives d beta = -(d g' at fixed beta) / g'', so p's
+ * derivative is the derivative of the stationary point itself, whatever frame beta is measured in (exact
+ * when Newton has converged, which 4 steps from the best of 13 samples do to rounding on smooth ground).
+ * Where g'' >= 0 no step was taken: beta is a sample, constant, and p moves with the frame (r1 follows the
+ * normal under the center: its Hessian). */
+static void rim_jacobian(const double x[7], const rim_final *f, double *J) {
+    const double *a = x + 3, R = x[6], *H0 = f->H0, *n0 = f->n0, *r1 = f->r1, *r2 = f->r2, *dp = f->dp;
+    const double *g = f->g, *H = f->H, cb = f->cb, sb = f->sb, mn = f->mn, na = f->na, tn = f->tn, d2 = f->d2;
     int implicit = d2 < 0;
     for (int col = 0; col < 7; col++) {
         double dc[3] = {0, 0, 0}, da[3] = {0, 0, 0}, dR = 0.0;
@@ -482,6 +496,51 @@ int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J
         Jc[4] = H[0] * dpt[0] + H[1] * dpt[1];
         Jc[5] = H[1] * dpt[0] + H[2] * dpt[1];
     }
+}
+
+int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J, double bad[2]) {
+    rim_final f;
+    if (rim_search(hm, x, &f, bad)) return 1;
+    memcpy(e, f.e, sizeof f.e);
+    if (J) rim_jacobian(x, &f, J);
+    return 0;
+}
+
+/* The memo of the last searches (heightmap_memo): the model evaluates the same wheel at the same pose several
+ * times (a step's end for its switches, then the next step's start for F; the outputs at a communication point;
+ * F and then its Jacobian), so a search whose input is bit for bit one of the last RIM_MEMO is not done again. The
+ * search is a function of x alone: the memo changes no result, only the work. */
+#define RIM_MEMO 32
+struct heightmap_memo {
+    double x[RIM_MEMO][7];
+    rim_final f[RIM_MEMO];
+    int n, next;
+    long hits, misses;
+};
+
+size_t heightmap_memo_size(void) { return sizeof(heightmap_memo); }
+
+static int rim_memoized(const heightmap *hm, heightmap_memo *memo, const double x[7], double e[6], double *J,
+                        double bad[2]) {
+    if (!memo) return heightmap_rim(hm, x, e, J, bad);
+    const rim_final *f = NULL;
+    for (int i = 0; i < memo->n && !f; i++)
+        if (memo->x[i][0] == x[0] && memcmp(memo->x[i], x, sizeof memo->x[i]) == 0) f = &memo->f[i];
+    if (f) {
+        memo->hits++;
+    } else {
+        rim_final found;
+        if (rim_search(hm, x, &found, bad)) return 1;
+        memo->misses++;
+        int k = memo->next;
+        memcpy(memo->x[k], x, sizeof memo->x[k]);
+        memo->f[k] = found;
+        memo->next = (k + 1) % RIM_MEMO;
+        if (memo->n < RIM_MEMO) memo->n++;
+        f = &memo->f[k];
+    }
+    memcpy(e, f->e, sizeof f->e);
+    if (J) rim_jacobian(x, f, J);
     return 0;
 }
 
@@ -490,8 +549,12 @@ int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J
 typedef long long int casadi_int;
 
 static __thread heightmap *active;
+static __thread heightmap_memo *active_memo;
 
-void heightmap_activate(heightmap *hm) { active = hm; }
+void heightmap_activate(heightmap *hm, heightmap_memo *memo) {
+    active = hm;
+    active_memo = hm ? memo : NULL;
+}
 
 static int outside(const double *x) {
     snprintf(active->msg, sizeof active->msg,
@@ -572,7 +635,7 @@ static const double ZERO7[7] = {0, 0, 0, 0, 0, 0, 0};
 static int rim_active(const double *x, double *e_out, double *J_out) {
     double e[6], J[42], bad[2];
     if (!active) return 1;
-    if (heightmap_rim(active, x ? x : ZERO7, e, J_out ? J : NULL, bad)) return outside(bad);
+    if (rim_memoized(active, active_memo, x ? x : ZERO7, e, J_out ? J : NULL, bad)) return outside(bad);
     if (e_out) memcpy(e_out, e, sizeof e);
     if (J_out) memcpy(J_out, J, sizeof J);
     return 0;
@@ -598,12 +661,31 @@ int jac_cedra_rim_point(const double **arg, double **res, casadi_int *iw, double
 static heightmap host_map;
 static char host_msg[512];
 
+static heightmap_memo *host_memo;      /* cedra_heightmap_host_memo (loading a map removes it) */
+
 int cedra_heightmap_host_load(const char *path) {
+    free(host_memo);
+    host_memo = NULL;
     heightmap_release(&host_map, free);
     if (heightmap_read(&host_map, path, calloc, free, host_msg, sizeof host_msg)) return 1;
-    heightmap_activate(&host_map);
+    heightmap_activate(&host_map, NULL);
     return 0;
 }
 
 const char *cedra_heightmap_host_message(void) { return host_msg[0] ? host_msg : host_map.msg; }
+
+/* the memo for the loading thread's map (tests: it must change no result); on = 0 removes it. Counts: hits, misses */
+
+int cedra_heightmap_host_memo(int on) {
+    free(host_memo);
+    host_memo = on ? (heightmap_memo *)calloc(1, sizeof *host_memo) : NULL;
+    if (on && !host_memo) return 1;
+    heightmap_activate(&host_map, host_memo);
+    return 0;
+}
+
+void cedra_heightmap_host_memo_counts(long counts[2]) {
+    counts[0] = host_memo ? host_memo->hits : 0;
+    counts[1] = host_memo ? host_memo->misses : 0;
+}
 #endif

@@ -34,8 +34,13 @@ int heightmap_read(heightmap *hm, const char *path, heightmap_alloc alloc, heigh
                    size_t msg_len);
 void heightmap_release(heightmap *hm, heightmap_free_fn fr);
 
-/* the map the external functions evaluate in this thread (NULL: they fail) */
-void heightmap_activate(heightmap *hm);
+/* A memo of the rim search's last results (heightmap.c: rim_memoized), heightmap_memo_size() bytes, zeroed before
+ * first use; it belongs to one map (an FMU instance keeps one beside its map) and changes no result. */
+typedef struct heightmap_memo heightmap_memo;
+size_t heightmap_memo_size(void);
+
+/* the map the external functions evaluate in this thread (NULL: they fail), and its memo (NULL: none) */
+void heightmap_activate(heightmap *hm, heightmap_memo *memo);
 
 /* height and derivatives at (X, Y): d1 = [h_X, h_Y], d2 = [h_XX, h_YX, h_XY, h_YY] (column-major Hessian),
  * d3 = d vec(Hessian) / d[X, Y] (4 x 2 column-major); any of them may be NULL. 0, or 1 outside the grid. */

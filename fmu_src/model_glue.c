@@ -103,6 +103,7 @@ struct model_ws {
     char msg[256];
     char full_msg[600];                 /* msg and the terrain's reason */
     heightmap *terrain;                 /* heightmap scenes: the instance's map */
+    heightmap_memo *memo;               /* and the memo of its rim searches */
     /* rigid contact (unused for compliant models) */
     double Mraw[NQ * NQ], W[3 * NC * NQ], bias[3 * NC], vc[3 * NC], gap[NC], lambda[3 * NC];
     int mode[NC], held_mode[NC], have_modes;
@@ -154,13 +155,16 @@ void model_bind(model_ws *ws, const double *inp, const double *par) {
 #endif
 }
 
-void model_bind_terrain(model_ws *ws, void *terrain) { ws->terrain = (heightmap *)terrain; }
+void model_bind_terrain(model_ws *ws, void *terrain, void *memo) {
+    ws->terrain = (heightmap *)terrain;
+    ws->memo = (heightmap_memo *)memo;
+}
 
 /* the generated functions of a heightmap scene evaluate the thread's active map: this instance's (its reason
  * cleared, so a message names the failure of this evaluation, not an earlier one) */
 static void activate(model_ws *ws) {
 #if CEDRA_HEIGHTMAP
-    heightmap_activate(ws->terrain);
+    heightmap_activate(ws->terrain, ws->memo);
     if (ws->terrain) ws->terrain->msg[0] = '\0';
 #else
     (void)ws;

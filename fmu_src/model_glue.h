@@ -13,8 +13,9 @@ typedef struct model_ws model_ws;
 size_t model_ws_size(void);
 /* the inputs and parameters the next evaluations use (pointers kept, not copied) */
 void model_bind(model_ws *ws, const double *inp, const double *par);
-/* the terrain data of a heightmap scene (heightmap.h; kept, not copied); every evaluation activates it */
-void model_bind_terrain(model_ws *ws, void *terrain);
+/* the terrain data of a heightmap scene and its rim searches' memo (heightmap.h; kept, not copied, memo may be NULL);
+ * every evaluation activates them */
+void model_bind_terrain(model_ws *ws, void *terrain, void *memo);
 /* the reason of the last failure (a finished sentence, no trailing newline) */
 const char *model_message(const model_ws *ws);
 void model_clear_message(model_ws *ws);

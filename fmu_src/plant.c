@@ -27,6 +27,7 @@ struct block_ws {
     long jac_age_save;
     double y_tmp[DIM(CEDRA_NY)];
     heightmap terrain;              /* heightmap scenes: resources/heightmap.txt (constant: not FMU state) */
+    heightmap_memo *memo;           /* its rim searches' memo (changes no result: not FMU state either) */
 };
 
 /* the solver settings by the variable table's index (variables.py: 0 method, 1 tol, 2 h_max, 3 max_steps,
@@ -120,7 +121,12 @@ int block_instantiate(instance *c, const char *resource_location) {
     }
 #if CEDRA_HEIGHTMAP
     if (read_terrain(c, resource_location)) return 1;
-    model_bind_terrain(c->ws->model, &c->ws->terrain);
+    c->ws->memo = (heightmap_memo *)c->alloc(1, heightmap_memo_size());
+    if (!c->ws->memo) {
+        log_msg(c, fmi2Fatal, CAT_FATAL, "fmi2Instantiate: out of memory");
+        return 1;
+    }
+    model_bind_terrain(c->ws->model, &c->ws->terrain, c->ws->memo);
 #else
     (void)resource_location;
 #endif
@@ -130,6 +136,7 @@ int block_instantiate(instance *c, const char *resource_location) {
 void block_free(instance *c) {
     if (!c->ws) return;
     heightmap_release(&c->ws->terrain, c->free);
+    if (c->ws->memo) c->free(c->ws->memo);
     if (c->ws->work) c->free(c->ws->work);
     if (c->ws->model) c->free(c->ws->model);
     c->free(c->ws);

@@ -341,3 +341,24 @@ def test_cedra_f_is_differentiable_once_through_the_rim_point(hills_models):
         fq, fu = (np.array(v) for v in jf(qv, uv))
         assert np.max(np.abs(fq + dq)) <= 1e-10 * np.max(np.abs(dq))
         assert np.max(np.abs(fu + du)) <= 1e-10 * np.max(np.abs(du))
+
+
+def test_the_rim_search_memo_changes_no_result(shipped_map):
+    """The FMU keeps its last rim searches (heightmap.c: rim_memoized) because the model asks for the same wheel pose
+    several times; a repeated pose must give bit for bit what a fresh search gives, with or without the Jacobian,
+    also after the pose has left the memo (more poses than it holds)."""
+    ext, point = heightmap.rim_external(), heightmap.rim_external(jacobian=False)
+    cases = rim_cases(11, 40)                         # more than the memo's 32 entries
+    fresh = [(np.array(point(x)), np.array(ext(x)[0]), np.array(ext(x)[1])) for x in cases]
+    heightmap.use_memo(True)
+    try:
+        order = [0, 0, 1, 0, 1, 2] + list(range(40)) + [39, 38, 0, 1] + list(range(40))[::-1]
+        for i in order:
+            x = cases[i]
+            e, (e2, J) = np.array(point(x)), (np.array(v) for v in ext(x))
+            assert np.array_equal(e, fresh[i][0]) and np.array_equal(e2, fresh[i][1])
+            assert np.array_equal(J, fresh[i][2])
+        hits, misses = heightmap.memo_counts()
+    finally:
+        heightmap.use_memo(False)
+    assert hits >= len(order) and misses >= 40 + 2     # the memo was used, and poses left it and came back

@@ -35,7 +35,7 @@ int main(int argc, char **argv) {
             fprintf(stderr, "%s\n", msg);
             return 3;
         }
-        heightmap_activate(&hm);
+        heightmap_activate(&hm, NULL);
     }
     int reps = atoi(argv[4]);
     static double out[4][4096];

@@ -79,6 +79,10 @@ def _ctypes_lib() -> ctypes.CDLL:
     lib.cedra_heightmap_host_load.argtypes = [ctypes.c_char_p]
     lib.cedra_heightmap_host_load.restype = ctypes.c_int
     lib.cedra_heightmap_host_message.restype = ctypes.c_char_p
+    lib.cedra_heightmap_host_memo.argtypes = [ctypes.c_int]
+    lib.cedra_heightmap_host_memo.restype = ctypes.c_int
+    lib.cedra_heightmap_host_memo_counts.argtypes = [ctypes.POINTER(ctypes.c_long)]
+    lib.cedra_heightmap_host_memo_counts.restype = None
     return lib
 
 
@@ -88,6 +92,20 @@ def load(path) -> None:
     lib = _ctypes_lib()
     if lib.cedra_heightmap_host_load(str(Path(path)).encode()):
         raise HeightmapError(lib.cedra_heightmap_host_message().decode())
+
+
+def use_memo(on: bool) -> None:
+    """Give the loaded map the FMU's memo of recent rim searches (heightmap.c: rim_memoized) or take it away
+    (loading a map also takes it away). For tests, which check that it changes no result; one thread only."""
+    if _ctypes_lib().cedra_heightmap_host_memo(int(on)):
+        raise MemoryError("no memory for the rim search memo")
+
+
+def memo_counts() -> tuple[int, int]:
+    """(hits, misses) of the memo since use_memo(True)."""
+    counts = (ctypes.c_long * 2)()
+    _ctypes_lib().cedra_heightmap_host_memo_counts(counts)
+    return counts[0], counts[1]
 
 
 def last_message() -> str:
