@@ -126,7 +126,7 @@ static int find_var(const char *name, int kind) {
 #endif
 
 const solver_structure *model_structure(void) {
-    static const solver_structure structure = {CEDRA_SCHUR_N2, MASS_ROWS, 1};
+    static const solver_structure structure = {CEDRA_SCHUR_N2, MASS_ROWS, 1, CEDRA_RIGID};
     return &structure;
 }
 

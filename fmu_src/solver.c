@@ -16,6 +16,12 @@
 #define MAX_FAILS 15        /* consecutive failed evaluations (rhs/jac error, non-finite, singular W) per point */
 #define SAFETY 0.9
 #define FAC_SHRINK 0.2      /* smallest h_new/h after an error test */
+/* A call's last step is stretched by up to this factor to land on t1 rather than taking two steps: the controller's
+ * proposal carries SAFETY and the restart rule below, so a call a little longer than it usually passes the error
+ * test in one step. Never a step cut at a switch (it must end there), one right after a rejection (it would fail
+ * again), or a step of a model that holds modes over it (solver_structure.modes_held). Measured (hills3d,
+ * ros34pw2 tol 1e-4): 2894 -> 1970 steps, CPU -18 %; 1.2 and 1.3 did the same, 1.5 added rejections. */
+#define LAST_STRETCH 1.25
 #define FAIL_SHRINK 0.25    /* h_new/h after a failed evaluation: the step left the region where F is defined */
 #define PI_BETA 0.04        /* Hairer's DOPRI5 PI controller (stabilizes h on the stability boundary) */
 
@@ -547,9 +553,12 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
         const double rem = t1 - t, hprop = fmin(h, hmax), hmin = solver_time_resolution(t);
         double hs;
         int last = 0, ev;
-        /* Land on t1 exactly; the 1e-9 only absorbs rounding in t so that a multiple of h_max takes no
-         * extra sliver step. A remainder between one and two steps is split evenly for the same reason. */
-        if (rem <= hprop * (1 + 1e-9)) {
+        /* Land on t1 exactly, stretching the step by up to LAST_STRETCH (and never beyond h_max); the 1e-9 only
+         * absorbs rounding in t so that a multiple of h_max takes no extra sliver step. A remainder between one
+         * and two steps is split evenly for the same reason. */
+        const double stretch = located || rejected_last || (sp && sp->modes_held)
+                                   ? 1 + 1e-9 : fmin(LAST_STRETCH, hmax / hprop * (1 + 1e-9));
+        if (rem <= hprop * stretch) {
             hs = rem;
             last = 1;
         } else if (located) {
@@ -805,7 +814,7 @@ int solver_integrate_post(const solver_settings *s, int n, double *x, double t0,
     }
     if (n <= 0 || t1 == t0) return 0;   /* nothing to integrate */
     if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, post, ctx, work, stats, msg, msg_len);
-    solver_structure sp = {0, 0, 0};
+    solver_structure sp = {0, 0, 0, 0};
     if (structure) sp = *structure;
     /* rows premultiplied by M cannot be read without the structure they belong to */
     if (sp.mass_rows && (sp.n2 <= 0 || 2 * sp.n2 > n)) {

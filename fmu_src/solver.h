@@ -90,6 +90,9 @@ typedef struct {
     /* F does not depend on t explicitly (an FMU's inputs are held over a step): dF/dt = 0 exactly, so RODAS4 does
      * not spend an evaluation of F per step on its forward difference */
     int autonomous;
+    /* F holds discrete modes chosen at a step's start over the step (a rigid contact's decision tree): a step is then
+     * never longer than the controller proposed, not even the call's last (solver.c: LAST_STRETCH) */
+    int modes_held;
 } solver_structure;
 
 /* the same, with a step-acceptance, a switch-location and a post-step callback (each NULL: none), and what is known
