@@ -348,6 +348,17 @@ static void cross3(const double *a, const double *b, double *c) {
 
 #define RIM_NEWTON 4
 
+/* The largest height of the patch of the cell that holds (X, Y) on the grid (the cell eval_h uses): at most its
+ * largest B-spline coefficient, the basis being nonnegative and summing to 1 up to rounding. */
+static double cell_bound(const heightmap *hm, double X, double Y) {
+    double u = (X - hm->x0) / hm->dx, v = (Y - hm->y0) / hm->dy;
+    int i = u > 0.0 ? (int)u : 0, j = v > 0.0 ? (int)v : 0;     /* as locate */
+    if (i > hm->nx - 2) i = hm->nx - 2;
+    if (j > hm->ny - 2) j = hm->ny - 2;
+    size_t k = (size_t)j * (size_t)(hm->nx - 1) + (size_t)i;
+    return hm->cellmax[k] + 1e-12 * (fabs(hm->cellmax[k]) + fabs(hm->cellmin[k]));
+}
+
 /* What the search leaves for its Jacobian: the frame under the center and the final point's terrain data. */
 typedef struct {
     double e[6];                                         /* p, h(p), h_X(p), h_Y(p) */
@@ -383,8 +394,9 @@ static int rim_search(const heightmap *hm, const double x[7], rim_final *f, doub
     /* Pruning, exact: every sample lies within R of the center horizontally; where that square is on the grid,
      * the spline under it is at most the largest B-spline coefficient of its cells (the basis is nonnegative and
      * sums to 1 there), so a sample whose p_Z is so high that even that height could not beat the best g so far
-     * is not evaluated: it could not have been chosen. (Off the grid's edge nothing is pruned, so a point off the
-     * grid still fails the evaluation as before.) */
+     * is not evaluated: it could not have been chosen; a sample that passes is tested again against the bound of its
+     * own cell (cell_bound). (Off the grid's edge nothing is pruned, so a point off the grid still fails the
+     * evaluation as before.) */
     double hmax = 0.0;
     int prune = 0;
     {
@@ -414,6 +426,7 @@ static int rim_search(const heightmap *hm, const double x[7], rim_final *f, doub
         p[2] = c[2] + R * (cb * r1[2] + sb * r2[2]);            /* the height first: enough to prune */
         if (prune && kk > 0 && hmax - p[2] < best_g) continue;
         for (int i = 0; i < 2; i++) p[i] = c[i] + R * (cb * r1[i] + sb * r2[i]);
+        if (prune && kk > 0 && cell_bound(hm, p[0], p[1]) - p[2] < best_g) continue;   /* the same, per cell */
         if (eval_h(hm, p[0], p[1], &h)) {
             bad[0] = p[0], bad[1] = p[1];
             return 1;

@@ -26,7 +26,7 @@ from cedra.models.scene import load_shipped, shipped
 from cedra.reports.common import fmt, fmu_path, md_table
 from cedra.run.progress import Progress
 
-TIGHT = {"solver.method": 2, "solver.tol": 1e-9, "solver.max_wall_time": 1e3}
+TIGHT = {"solver.method": SOLVER_METHODS.index("rodas4"), "solver.tol": 1e-9, "solver.max_wall_time": 1e3}
 CRITERION = 1e-3
 MAX_T_END = 15.0          # s: the scenes' own stop time, at most this
 
