@@ -96,3 +96,35 @@ void linalg_chol_solve(int n, const double *l, double *b) {
         b[j] = acc / c[j];
     }
 }
+
+int linalg_chol_factor_perm(int n, const double *a, const int *perm, double *l, int *nz) {
+    for (int j = 0; j < n; j++)                        /* l = P A P^T, lower triangle */
+        for (int i = j; i < n; i++) l[(size_t)j * n + i] = a[(size_t)perm[j] * n + perm[i]];
+    /* right-looking as linalg_chol_factor, the trailing update only where column k of L is nonzero (nz lists
+     * those rows): a zero there makes every product with it an exact no-op */
+    for (int k = 0; k < n; k++) {
+        double *colk = l + (size_t)k * n;
+        double d = colk[k];
+        if (!(d > 0.0) || !isfinite(d)) return 1;
+        d = sqrt(d);
+        colk[k] = d;
+        double inv = 1.0 / d;
+        int m = 0;
+        for (int i = k + 1; i < n; i++) {
+            colk[i] *= inv;
+            if (colk[i] != 0.0) nz[m++] = i;
+        }
+        for (int jj = 0; jj < m; jj++) {
+            int j = nz[jj];
+            double *c = l + (size_t)j * n, ljk = colk[j];
+            for (int ii = jj; ii < m; ii++) c[nz[ii]] -= colk[nz[ii]] * ljk;
+        }
+    }
+    return 0;
+}
+
+void linalg_chol_solve_perm(int n, const double *l, const int *perm, double *b, double *work) {
+    for (int k = 0; k < n; k++) work[k] = b[perm[k]];
+    linalg_chol_solve(n, l, work);
+    for (int k = 0; k < n; k++) b[perm[k]] = work[k];
+}

@@ -12,5 +12,11 @@ void linalg_lu_solve(int n, const double *lu, const int *piv, double *b);
 int linalg_chol_factor(int n, double *a);
 /* Solve A x = b in place on b with the factor of linalg_chol_factor. */
 void linalg_chol_solve(int n, const double *l, double *b);
+/* The same for P A P^T, perm[k] = the row and column of A eliminated k-th: l (n x n, not a) receives the factor,
+ * nz is n ints of scratch. The factor skips the exact zeros of L's columns: with an order that keeps a sparse A's
+ * zeros zero (a mechanism's mass matrix with its wheels first: cedra.fmu.mass_order) it does a fraction of the
+ * dense work. Solve: b := A^-1 b, work n doubles. */
+int linalg_chol_factor_perm(int n, const double *a, const int *perm, double *l, int *nz);
+void linalg_chol_solve_perm(int n, const double *l, const int *perm, double *b, double *work);
 
 #endif

@@ -86,8 +86,9 @@ struct model_ws {
     int sw_count[DIM(NSW)];             /* times each switch was located since then */
     int loc_which[LOG_LOCATED];
     double loc_t0[LOG_LOCATED], loc_t1[LOG_LOCATED];
-    double M[NQ * NQ];                  /* factors of the mass matrix at dyn_x: Cholesky if m_chol, else LU */
-    int m_chol;
+    /* factors of the mass matrix at dyn_x: Cholesky in CEDRA_M_ORDER if m_chol (linalg_chol_factor_perm), else LU */
+    double M[NQ * NQ];
+    int m_chol, m_nz[NQ];
     double Mfull[NQ * NQ];              /* the mass matrix itself there */
     int piv[NQ];
     /* M, f and g are those of dyn_x (2 NQ) when dyn_valid: RODAS4 asks for F and then the Jacobian at the same
@@ -235,8 +236,9 @@ static int eval_M_f(model_ws *ws, const double *q, const double *u, double t, do
 
 /* b := M^-1 b with the factors of eval_dynamics */
 static void mass_solve(const model_ws *ws, double *b) {
+    double work[NQ];
     if (ws->m_chol)
-        linalg_chol_solve(NQ, ws->M, b);
+        linalg_chol_solve_perm(NQ, ws->M, CEDRA_M_ORDER, b, work);
     else
         linalg_lu_solve(NQ, ws->M, ws->piv, b);
 }
@@ -247,10 +249,10 @@ static int eval_dynamics(model_ws *ws, const double *q, const double *u, double 
         memcmp(ws->dyn_x + NQ, u, sizeof(double) * NQ) == 0)
         return 0;
     if (eval_M_f(ws, q, u, t, ws->Mfull)) return 1;
-    /* Cholesky (M is symmetric positive definite for any assembly of the mechanism); LU with pivoting where
-     * rounding makes it fail to be (then the LU's own test decides whether M can be solved at all) */
-    memcpy(ws->M, ws->Mfull, sizeof ws->M);
-    ws->m_chol = !linalg_chol_factor(NQ, ws->M);
+    /* Cholesky (M is symmetric positive definite for any assembly of the mechanism), in the generator's order that
+     * keeps M's zeros zero (cedra.fmu.mass_order: the wheels first); LU with pivoting where rounding makes it fail
+     * to be (then the LU's own test decides whether M can be solved at all) */
+    ws->m_chol = !linalg_chol_factor_perm(NQ, ws->Mfull, CEDRA_M_ORDER, ws->M, ws->m_nz);
     if (!ws->m_chol) {
         memcpy(ws->M, ws->Mfull, sizeof ws->M);
         if (linalg_lu_factor(NQ, ws->M, ws->piv)) {

@@ -21,6 +21,7 @@ if str(_PY) not in sys.path:                      # importable from a checkout w
     sys.path.insert(0, str(_PY))
 
 from cedra.contract import ModelSpec  # noqa: E402
+from cedra.fmu.mass_order import elimination_order  # noqa: E402
 from cedra.fmu.variables import Var, solver_defaults, units, variables  # noqa: E402
 
 GENERATION_TOOL = "cedra (CasADi code generation, hand-written FMI 2.0 CS glue)"
@@ -202,6 +203,7 @@ def vars_header(spec: ModelSpec, guid: str) -> str:
         f"#define CEDRA_PERIOD_PAR {[p.name for p in spec.params].index('ctrl.period') if spec.block == 'controller' else -1}",
         f"#define CEDRA_NVARS {len(table)}", "",
         arr("CEDRA_SETTLE_IDX", "int", spec.settle_idx, str),
+        arr("CEDRA_M_ORDER", "int", elimination_order(spec), str),
         arr("CEDRA_Q_START", "double", spec.q_start, _c_real),
         arr("CEDRA_PAR_START", "double", [p.start for p in spec.params], _c_real),
         arr("CEDRA_INP_START", "double", [p.start for p in spec.inputs], _c_real),

@@ -146,6 +146,17 @@ int harness_chol_solve(int n, const double *a, double *b) {
     return rc;
 }
 
+/* The same in the elimination order perm (linalg_chol_factor_perm: the FMU's mass-matrix factor); the factor of
+ * P A P^T into l (n x n) as well, for its zeros. */
+int harness_chol_solve_perm(int n, const double *a, const int *perm, double *b, double *l) {
+    int nz[64];
+    double work[64];
+    if (n > 64) return -1;
+    int rc = linalg_chol_factor_perm(n, a, perm, l, nz);
+    if (rc == 0) linalg_chol_solve_perm(n, l, perm, b, work);
+    return rc;
+}
+
 /* ---- issue 13: the RODAS4 stage system with the second-order structure, and switch location ---- */
 
 /* Solve (fac I - J) x = b for n <= 64 twice: densely (out_full) and with the n2 x n2 Schur complement (out_red).
