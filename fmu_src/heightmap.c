@@ -615,8 +615,8 @@ static const casadi_int *const OUT1[] = {SP_1X2, SP_2X2, SP_4X2};
  * J[6x7] = de/dx): the wheel's contact point p (spec section 6: the 13-sample rim search and 4 Newton steps, in
  * C, heightmap_rim) with the terrain's height and gradient there, and their exact derivative with respect to the
  * wheel's pose (implicit function theorem at the tangency point). The model uses J explicitly
- * (cedra.mechanics.terrain: the contact's chain rule), so nothing differentiates this function. cedra_rim_point: the same without J (the
- * functions that hold no derivative, cedra_f above all). */
+ * (cedra.mechanics.terrain: the contact's chain rule), so nothing differentiates this function. cedra_rim_point:
+ * the same without J (the functions that hold no derivative, cedra_f above all). */
 static const casadi_int *const IN2[] = {SP_7};
 static const casadi_int *const OUT2[] = {SP_6, SP_6X7};
 /* jac_cedra_rim_point: (x, e) -> (de/dx [6x7]): cedra_rim_point differentiable once (CasADi's AD of a function
@@ -624,7 +624,8 @@ static const casadi_int *const OUT2[] = {SP_6, SP_6X7};
 static const casadi_int *const IN3[] = {SP_7, SP_6};
 static const casadi_int *const OUT3[] = {SP_6X7};
 
-/* the metadata CasADi reads when it loads the functions from a shared library (Python side, cedra.mechanics.heightmap) */
+/* the metadata CasADi reads when it loads the functions from a shared library (Python side,
+ * cedra.mechanics.heightmap) */
 EXTERNAL_SHAPE(cedra_heightmap, 1, 3, IN0, OUT0)
 EXTERNAL_SHAPE(jac_cedra_heightmap, 4, 3, IN1, OUT1)
 EXTERNAL_SHAPE(cedra_rim_contact, 1, 2, IN2, OUT2)

@@ -526,12 +526,12 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
     int located = 0;
     double h_uncut = 0;
     /* The step-size proposal after this call's first accepted step (no growth if rejections preceded it). A call
-     * starts where the importer may have changed the inputs (the main job's controller changes the torques every 0.01 s); the jump excites
-     * the wheels' fast slip transients (friction with v_eps = 0.01 m/s), which only a short first step resolves.
-     * Carrying the previous call's last proposal into that restart cost 7-8 rejected steps per call on the bump
-     * (measured: the rejections sat at the communication points, with the error estimate falling like h). The
-     * next call therefore starts from this call's restart size; the step then grows again by up to grow_max per
-     * step. */
+     * starts where the importer may have changed the inputs (the main job's controller changes the torques every
+     * 0.01 s); the jump excites the wheels' fast slip transients (friction with v_eps = 0.01 m/s), which only a
+     * short first step resolves. Carrying the previous call's last proposal into that restart cost 7-8 rejected
+     * steps per call on the bump (measured: the rejections sat at the communication points, with the error
+     * estimate falling like h). The next call therefore starts from this call's restart size; the step then grows
+     * again by up to grow_max per step. */
     double h_restart = 0;
     long attempts_before_first = -1;
     long attempts = 0;
