@@ -257,13 +257,21 @@ int heightmap_eval(const heightmap *hm, double X, double Y, double *h, double *d
 /* The rim search's evaluations (~20 points per wheel and model evaluation): the same spline, unrolled for what
  * the search needs (the height alone at the 13 samples; height, gradient and Hessian at the Newton points).
  * The cell and its local coordinates: 0, or 1 outside the grid (as heightmap_eval). */
+/* the cell (i, j) of grid coordinates (u, v) within slack of the grid: truncation = floor here, the last node in
+ * the last cell */
+static void grid_cell(const heightmap *hm, double u, double v, int *i, int *j) {
+    *i = u > 0.0 ? (int)u : 0;
+    *j = v > 0.0 ? (int)v : 0;
+    if (*i > hm->nx - 2) *i = hm->nx - 2;
+    if (*j > hm->ny - 2) *j = hm->ny - 2;
+}
+
 static int locate(const heightmap *hm, double X, double Y, const double **c, double *t, double *s) {
     double u = (X - hm->x0) / hm->dx, v = (Y - hm->y0) / hm->dy;
     const double slack = 1e-9;
     if (!(u >= -slack && u <= hm->nx - 1 + slack && v >= -slack && v <= hm->ny - 1 + slack)) return 1;
-    int i = u > 0.0 ? (int)u : 0, j = v > 0.0 ? (int)v : 0;   /* truncation = floor here */
-    if (i > hm->nx - 2) i = hm->nx - 2;
-    if (j > hm->ny - 2) j = hm->ny - 2;
+    int i, j;
+    grid_cell(hm, u, v, &i, &j);
     *c = hm->coef + (size_t)j * (hm->nx + 2) + i;
     *t = u - i;
     *s = v - j;
@@ -351,10 +359,8 @@ static void cross3(const double *a, const double *b, double *c) {
 /* The largest height of the patch of the cell that holds (X, Y) on the grid (the cell eval_h uses): at most its
  * largest B-spline coefficient, the basis being nonnegative and summing to 1 up to rounding. */
 static double cell_bound(const heightmap *hm, double X, double Y) {
-    double u = (X - hm->x0) / hm->dx, v = (Y - hm->y0) / hm->dy;
-    int i = u > 0.0 ? (int)u : 0, j = v > 0.0 ? (int)v : 0;     /* as locate */
-    if (i > hm->nx - 2) i = hm->nx - 2;
-    if (j > hm->ny - 2) j = hm->ny - 2;
+    int i, j;
+    grid_cell(hm, (X - hm->x0) / hm->dx, (Y - hm->y0) / hm->dy, &i, &j);
     size_t k = (size_t)j * (size_t)(hm->nx - 1) + (size_t)i;
     return hm->cellmax[k] + 1e-12 * (fabs(hm->cellmax[k]) + fabs(hm->cellmin[k]));
 }

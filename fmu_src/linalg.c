@@ -64,24 +64,6 @@ void linalg_lu_solve(int n, const double *lu, const int *piv, double *b) {
     }
 }
 
-int linalg_chol_factor(int n, double *a) {
-    /* Right-looking, column by column: column k of L, then the trailing lower triangle updated by it. */
-    for (int k = 0; k < n; k++) {
-        double *colk = a + (size_t)k * n;
-        double d = colk[k];
-        if (!(d > 0.0) || !isfinite(d)) return 1;      /* not positive definite (or NaN): the caller falls back */
-        d = sqrt(d);
-        colk[k] = d;
-        double inv = 1.0 / d;
-        for (int i = k + 1; i < n; i++) colk[i] *= inv;
-        for (int j = k + 1; j < n; j++) {
-            double *c = a + (size_t)j * n, ljk = colk[j];
-            for (int i = j; i < n; i++) c[i] -= colk[i] * ljk;
-        }
-    }
-    return 0;
-}
-
 void linalg_chol_solve(int n, const double *l, double *b) {
     for (int j = 0; j < n; j++) {                      /* L y = b */
         const double *c = l + (size_t)j * n;
@@ -100,8 +82,8 @@ void linalg_chol_solve(int n, const double *l, double *b) {
 int linalg_chol_factor_perm(int n, const double *a, const int *perm, double *l, int *nz) {
     for (int j = 0; j < n; j++)                        /* l = P A P^T, lower triangle */
         for (int i = j; i < n; i++) l[(size_t)j * n + i] = a[(size_t)perm[j] * n + perm[i]];
-    /* right-looking as linalg_chol_factor, the trailing update only where column k of L is nonzero (nz lists
-     * those rows): a zero there makes every product with it an exact no-op */
+    /* right-looking, column by column: column k of L, then the trailing lower triangle updated by it - only where
+     * column k is nonzero (nz lists those rows): a zero there makes every product with it an exact no-op */
     for (int k = 0; k < n; k++) {
         double *colk = l + (size_t)k * n;
         double d = colk[k];
