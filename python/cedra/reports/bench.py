@@ -30,7 +30,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from cedra.contract import SOLVER_METHODS
+from cedra.reports.common import SOLVER_CODES
 
 SCENES = ("bump2d", "flat3d")
 CFLAGS = ["-O2", "-fPIC", "-shared"]
@@ -119,7 +119,7 @@ def bench_scene(name, build, stop_time):
 CONTACT_RUNS = {   # label: (scene, settings)
     "bump2d": ("bump2d", {}),
     "bump2d_rigid": ("bump2d_rigid", {}),
-    "bump2d_rigid dopri5": ("bump2d_rigid", {"solver.method": 1}),
+    "bump2d_rigid dopri5": ("bump2d_rigid", {"solver.method": SOLVER_CODES["dopri5"]}),
 }
 
 
@@ -145,7 +145,7 @@ STEP_SCENES = ("bump2d", "bump3d")
 STEP_VARIANTS = {        # label: (extra C flags of the FMU build (fmu_src/model_glue.c), solver settings)
     "rodas4, dense 2n+1 solve": (["-DCEDRA_SCHUR_N2=0"], {}),
     "rodas4, Schur n x n solve": ([], {}),
-    "ros34pw2, Schur n x n solve": ([], {"solver.method": 3}),
+    "ros34pw2, Schur n x n solve": ([], {"solver.method": SOLVER_CODES["ros34pw2"]}),
 }
 STAGE_C = r"""
 #include <time.h>
@@ -318,7 +318,7 @@ TARGETS = {"bump3d": 20.0, "hills3d": 10.0, "flat3d": 5.0}     # issue 13: MuJoC
 def solver_setting(method: str, tol: float) -> tuple[str, dict]:
     """("<method> <tol>" as in "ros34pw2 1e-4", the FMU's start values for it)."""
     mantissa, exponent = f"{tol:.0e}".split("e")
-    return f"{method} {mantissa}e{int(exponent)}", {"solver.method": SOLVER_METHODS.index(method), "solver.tol": tol}
+    return f"{method} {mantissa}e{int(exponent)}", {"solver.method": SOLVER_CODES[method], "solver.tol": tol}
 
 
 # Each FMU also runs at these solver settings besides its scene defaults (rodas4, tol 1e-6): the faster ones a user

@@ -21,12 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from cedra.contract import SOLVER_METHODS
 from cedra.models.scene import load_shipped, shipped
-from cedra.reports.common import fmt, fmu_path, md_table
+from cedra.reports.common import SOLVER_CODES, fmt, fmu_path, md_table
 from cedra.run.progress import Progress
 
-TIGHT = {"solver.method": SOLVER_METHODS.index("rodas4"), "solver.tol": 1e-9, "solver.max_wall_time": 1e3}
+TIGHT = {"solver.method": SOLVER_CODES["rodas4"], "solver.tol": 1e-9, "solver.max_wall_time": 1e3}
 CRITERION = 1e-3
 MAX_T_END = 15.0          # s: the scenes' own stop time, at most this
 
@@ -61,7 +60,7 @@ def compare(name: str, build="build", tol: float | None = None, method: str | No
         setting, instead = f"{s.get('method', 'dopri5')} tol {s.get('tol', 1e-6):g}", {}
     else:
         m, t = method or "rodas4", s.get("tol", 1e-6) if tol is None else tol
-        setting, instead = f"{m} tol {t:g}", {"solver.method": SOLVER_METHODS.index(m), "solver.tol": t}
+        setting, instead = f"{m} tol {t:g}", {"solver.method": SOLVER_CODES[m], "solver.tol": t}
     c0 = time.process_time()
     names, rows, _, info = run_bump(path, t_end, instead)
     c1 = time.process_time()
