@@ -16,6 +16,9 @@
 #define NQ CEDRA_NQ
 #define NZ CEDRA_NZ
 #define NX CEDRA_NX
+/* rigid contact: x ends with the contact impulses since the communication step's start (3 per contact) */
+#define NIMP CEDRA_NIMP
+#define IMP (2 * NQ + NZ)
 #define NS CEDRA_NS
 #define DIM(n) ((n) > 0 ? (n) : 1)
 #define MAX2(a, b) ((a) > (b) ? (a) : (b))
@@ -114,6 +117,8 @@ struct model_ws {
     double xh[NX], fh[NX];
     int i_mu, i_alpha, i_vstick;        /* where mu (input), rigid_alpha and v_stick (parameters) live */
     int y_fn[NC], y_fx[NC], y_fy[NC], y_mode[NC];   /* output slots the contact solution fills */
+    int y_mean[3 * NC];                 /* wheel[k].Fx_mean, Fy_mean, Fn_mean: the lambda layout */
+    double impulse[3 * NC];
 };
 
 size_t model_ws_size(void) { return sizeof(model_ws); }
@@ -127,7 +132,7 @@ static int find_var(const char *name, int kind) {
 #endif
 
 const solver_structure *model_structure(void) {
-    static const solver_structure structure = {CEDRA_SCHUR_N2, MASS_ROWS, 1, CEDRA_RIGID};
+    static const solver_structure structure = {CEDRA_SCHUR_N2, MASS_ROWS, 1, CEDRA_RIGID, NIMP};
     return &structure;
 }
 
@@ -152,6 +157,10 @@ void model_bind(model_ws *ws, const double *inp, const double *par) {
         ws->y_fy[k] = find_var(name, CEDRA_K_OUT);
         snprintf(name, sizeof name, "wheel[%d].mode", k + 1);
         ws->y_mode[k] = find_var(name, CEDRA_K_OUT);
+        for (int c = 0; c < 3; c++) {
+            snprintf(name, sizeof name, "wheel[%d].%s_mean", k + 1, c == 0 ? "Fx" : c == 1 ? "Fy" : "Fn");
+            ws->y_mean[3 * k + c] = find_var(name, CEDRA_K_OUT);
+        }
     }
 #endif
 }
@@ -481,12 +490,14 @@ int model_post_step(void *ctx, double t, double *x) {
         r = 1;
     }
     if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
-    int ri = rigid_impact(NQ, NC, x + NQ, ws->Mraw, ws->W, ws->vc, ws->gap, &p, ws->rwork, ws->riwork, why,
-                          sizeof why);
+    int ri = rigid_impact(NQ, NC, x + NQ, ws->impulse, ws->Mraw, ws->W, ws->vc, ws->gap, &p, ws->rwork,
+                          ws->riwork, why, sizeof why);
     if (ri < 0) {
         snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
         return ri;
     }
+    if (ri)      /* the impact's impulses belong to the communication step's (wheel[k].F*_mean) */
+        for (int i = 0; i < NIMP; i++) x[IMP + i] += ws->impulse[i];
     r |= ri;
     int d = rigid_decide(ws, x, t);
     if (d < 0) return -1;
@@ -516,13 +527,14 @@ int model_rhs(void *ctx, double t, const double *x, double *xdot) {
     if (!ws->have_modes && rigid_decide(ws, x, t) < 0) return 1;
     if (rigid_solve(ws, q, u, t, xdot + NQ, 0)) return 1;
     memcpy(xdot, u, sizeof(double) * NQ);
+    memcpy(xdot + IMP, ws->lambda, sizeof(double) * NIMP);     /* the impulses' rates: the contact forces */
 #else
     if (eval_dynamics(ws, q, u, t)) return 1;
     memcpy(xdot, u, sizeof(double) * NQ);
     memcpy(xdot + NQ, ws->f, sizeof(double) * NQ);
     mass_solve(ws, xdot + NQ);
 #endif
-    if (NZ > 0) memcpy(xdot + 2 * NQ, ws->g, sizeof(double) * NZ);
+    if (NZ > 0) memcpy(xdot + 2 * NQ, ws->g, sizeof(double) * NZ);   /* the impulses follow, at IMP */
     if (!all_finite(xdot, NX)) {
         snprintf(ws->msg, sizeof ws->msg, "the derivative is not finite at t=%.17g", t);
         return 1;
@@ -539,7 +551,8 @@ int model_jac(void *ctx, double t, const double *x, const double *xdot, double *
     /* The decision tree has no symbolic Jacobian: forward differences of F (rodas4 then runs with an
      * approximate Jacobian; its error control still holds, its order may drop near mode switches). */
     memcpy(ws->xh, x, sizeof(double) * NX);
-    for (int j = 0; j < NX; j++) {
+    memset(jac + (size_t)2 * NQ * NX, 0, sizeof(double) * (size_t)(NX - 2 * NQ) * NX);   /* F ignores z, impulses */
+    for (int j = 0; j < 2 * NQ; j++) {
         double d = 1e-7 * fmax(1.0, fabs(x[j]));
         ws->xh[j] = x[j] + d;
         if (model_rhs(ctx, t, ws->xh, ws->fh)) return 1;
@@ -611,6 +624,8 @@ int model_outputs(model_ws *ws, const double *x, double *y) {
         if (ws->y_fn[k] >= 0) y[ws->y_fn[k]] = ws->lambda[3 * k + 2];
         if (ws->y_mode[k] >= 0) y[ws->y_mode[k]] = ws->mode[k];
     }
+    for (int i = 0; i < 3 * NC; i++)    /* no interval yet (model_interval_outputs): the force here */
+        if (ws->y_mean[i] >= 0) y[ws->y_mean[i]] = ws->lambda[i];
 #endif
     for (int i = 0; i < CEDRA_NY; i++) {
         if (!isfinite(y[i])) {
@@ -688,4 +703,21 @@ int model_settle(model_ws *ws, double *q) {
     snprintf(ws->msg, sizeof ws->msg, "settle: no convergence in %d Newton iterations (residual %.3g)",
              SETTLE_MAX_ITER, r);
     return 1;
+}
+
+void model_begin_interval(model_ws *ws, double *x) {
+    (void)ws;
+    for (int i = 0; i < NIMP; i++) x[IMP + i] = 0.0;
+}
+
+void model_interval_outputs(model_ws *ws, const double *x, double h, double *y) {
+#if CEDRA_RIGID
+    for (int i = 0; i < 3 * NC; i++)
+        if (ws->y_mean[i] >= 0) y[ws->y_mean[i]] = x[IMP + i] / h;
+#else
+    (void)ws;
+    (void)x;
+    (void)h;
+    (void)y;
+#endif
 }

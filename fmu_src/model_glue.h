@@ -43,6 +43,11 @@ long model_take_located(model_ws *ws, int k, const char **name, double *t0, doub
 /* post-step callback (solver.h): rigid contact projection; does nothing for compliant models */
 int model_post_step(void *ctx, double t, double *x);
 
+/* a communication step starts at x: what x accumulates over one (a rigid contact's impulses) restarts at 0 */
+void model_begin_interval(model_ws *ws, double *x);
+/* after model_outputs at the step's end x, h after model_begin_interval: the outputs that are means over the step
+ * (a rigid contact's wheel[k].F*_mean = impulse / h); nothing for compliant models */
+void model_interval_outputs(model_ws *ws, const double *x, double h, double *y);
 /* y = outputs at x; 0, or 1 (message) if the state cannot be evaluated or an output is not finite */
 int model_outputs(model_ws *ws, const double *x, double *y);
 /* 1 if cedra_check accepts (q, u), else 0 (message set) */

@@ -212,7 +212,7 @@ int block_outputs(instance *c, const char *fn) {
     model_bind(ws, s->inp, s->par);
     memcpy(q, b->q_start, sizeof(double) * NQ);
     memcpy(u, b->u_start, sizeof(double) * NQ);
-    for (int i = 0; i < NZ; i++) x[2 * NQ + i] = 0.0;
+    for (int i = 2 * NQ; i < NX; i++) x[i] = 0.0;     /* the integrals (work; a rigid contact's impulses) */
     if (b->settle) {
         if (model_settle(ws, q)) {
             log_msg(c, fmi2Error, CAT_ERROR, "%s: static equilibrium at the start failed: %s", fn, model_message(ws));
@@ -271,6 +271,7 @@ fmi2Status block_step(instance *c, double t, double h) {
         memcpy(c->ws->keep_save, b->jac_keep, sizeof b->jac_keep);
         c->ws->jac_age_save = b->stats.jac_age;
     }
+    model_begin_interval(ws, b->x);      /* after the copy: a refused step leaves the instance as it was */
     solver_msg[0] = '\0';
     model_clear_message(ws);
     model_take_located(ws, -1, NULL, NULL, NULL);
@@ -289,6 +290,7 @@ fmi2Status block_step(instance *c, double t, double h) {
     for (int i = 0; i < NX; i++)
         if (!isfinite(b->x[i])) return step_failed(c, "the state is not finite after the step", "");
     if (model_outputs(ws, b->x, c->ws->y_tmp)) return step_failed(c, model_message(ws), "");
+    model_interval_outputs(ws, b->x, h, c->ws->y_tmp);
     memcpy(s->y, c->ws->y_tmp, sizeof(double) * CEDRA_NY);
     return fmi2OK;
 }

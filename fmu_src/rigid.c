@@ -449,8 +449,8 @@ int rigid_project(int nq, int nc, double *q, const double *M, const double *W, c
     return 0;
 }
 
-int rigid_impact(int nq, int nc, double *u, const double *M, const double *W, const double *vc, const double *gap,
-                 const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
+int rigid_impact(int nq, int nc, double *u, double *impulse, const double *M, const double *W, const double *vc,
+                 const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
     /* velocities: an inelastic impact with Coulomb friction when a touching wheel approaches the ground. The
      * impulses solve the same complementarity problem as the forces, one level down (M du = W' L, the
      * constraint values are the post-impact contact velocities, target 0): every touching wheel starts sticking
@@ -487,5 +487,6 @@ int rigid_impact(int nq, int nc, double *u, const double *M, const double *W, co
         return -1;
     }
     for (int j = 0; j < nq; j++) u[j] += du[j];
+    if (impulse) memcpy(impulse, L, sizeof(double) * 3 * (size_t)nc);
     return 1;
 }

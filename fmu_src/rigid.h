@@ -49,8 +49,9 @@ int rigid_project(int nq, int nc, double *q, const double *M, const double *W, c
 /* Post-step stabilization, velocities: when a touching contact approaches the ground (v_n < 0), an inelastic
  * impact with Coulomb friction over all touching contacts: M du = W' L, decided like the forces on the
  * post-impact contact velocities (stick: W (u + du) = 0; slip: normal row, |L_t| = mu L_n; no pulling impulse).
- * u is modified in place; returns 1 if it changed, 0 if not, -1 if no consistent impact was found (msg). */
-int rigid_impact(int nq, int nc, double *u, const double *M, const double *W, const double *vc, const double *gap,
-                 const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len);
+ * u is modified in place; returns 1 if it changed, 0 if not, -1 if no consistent impact was found (msg).
+ * impulse (3 nc, or NULL): with 1, the impulses L (per contact: x, y, n in the contact frame, as lambda). */
+int rigid_impact(int nq, int nc, double *u, double *impulse, const double *M, const double *W, const double *vc,
+                 const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len);
 
 #endif

@@ -486,15 +486,16 @@ static int ros34pw2_step(int n, const solver_structure *sp, const double *x, dou
 
 /* Hairer's HINIT (dopri5.f): an explicit Euler probe estimates the second derivative; h is chosen so that
  * h^order * max(|x''|, |x'|) ~ 0.01 in the tolerance-scaled norm. f0 = F(t, x). */
-static double initial_step(int n, const double *x, double t, const double *f0, double tol, double hmax, double span,
-                           int order, solver_rhs_fn rhs, void *ctx, double *y1, double *f1, solver_stats *st) {
-    double dnf = rms_scaled(n, tol, f0, x), dny = rms_scaled(n, tol, x, x);
+static double initial_step(int n, int n_err, const double *x, double t, const double *f0, double tol, double hmax,
+                           double span, int order, solver_rhs_fn rhs, void *ctx, double *y1, double *f1,
+                           solver_stats *st) {
+    double dnf = rms_scaled(n_err, tol, f0, x), dny = rms_scaled(n_err, tol, x, x);
     double h = (dnf <= 1e-10 || dny <= 1e-10) ? 1e-6 : 0.01 * dny / dnf;
     h = fmin(h, fmin(hmax, span));   /* the probe stays inside [t0, t1]: F may not be defined beyond */
     for (int i = 0; i < n; i++) y1[i] = x[i] + h * f0[i];
     if (eval(rhs, ctx, t + h, y1, f1, n, st) != EV_OK) return h;   /* the step control takes over from here */
     for (int i = 0; i < n; i++) f1[i] -= f0[i];
-    double der2 = rms_scaled(n, tol, f1, x) / h;
+    double der2 = rms_scaled(n_err, tol, f1, x) / h;
     double der12 = fmax(der2, dnf);
     double h1 = der12 <= 1e-15 ? fmax(1e-6, h * 1e-3) : pow(0.01 / der12, 1.0 / order);
     return fmin(fmin(100 * h, h1), hmax);
@@ -505,6 +506,7 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
                     solver_post_fn post, void *ctx, double *w, double *keep, solver_stats *st, char *msg,
                     size_t msg_len) {
     const int dopri = s->method == SOLVER_DOPRI5, wmeth = s->method == SOLVER_ROS34PW2;
+    const int n_err = n - sp->quad_tail;     /* the components the error test weighs */
     const char *name = dopri ? "dopri5" : wmeth ? "ros34pw2" : "rodas4";
     /* The error estimate is O(h^(q+1)), q the lower of the two orders: 4 for DOPRI5, 3 for RODAS4, 2 for
      * ROS34PW2. */
@@ -544,7 +546,7 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
                          : rodas4_start(n, sp, x, t, t1, rhs, jac, ctx, w, st);
         have_start = ev == EV_OK;
         /* scratch for the probe: k4, k5 (DOPRI5) or k2, k3 (RODAS4, ROS34PW2) - never f0, f_t, J */
-        h = have_start ? initial_step(n, x, t, f0, tol, hmax, t1 - t, dopri ? 5 : wmeth ? 3 : 4, rhs, ctx,
+        h = have_start ? initial_step(n, n_err, x, t, f0, tol, hmax, t1 - t, dopri ? 5 : wmeth ? 3 : 4, rhs, ctx,
                                       w + 3 * (size_t)n, w + 4 * (size_t)n, st)
                        : fmin(hmax, 1e-6 * fmax(1.0, t1 - t0));
     }
@@ -592,7 +594,7 @@ static int adaptive(const solver_settings *s, int n, const solver_structure *sp,
             ev = dopri ? dopri5_step(n, x, t, hs, tend, rhs, ctx, w, st)
                  : wmeth ? ros34pw2_step(n, sp, x, t, hs, tend, rhs, ctx, w, Jw, st)
                          : rodas4_step(n, sp, x, t, hs, tend, rhs, ctx, w, st);
-        double err = ev == EV_OK ? err_norm(n, tol, errv, x, xnew) : 0.0;
+        double err = ev == EV_OK ? err_norm(n_err, tol, errv, x, xnew) : 0.0;
         if (ev == EV_OK && isnan(err)) ev = EV_NONFINITE;
 
         if (ev != EV_OK) {
@@ -814,8 +816,9 @@ int solver_integrate_post(const solver_settings *s, int n, double *x, double t0,
     }
     if (n <= 0 || t1 == t0) return 0;   /* nothing to integrate */
     if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, post, ctx, work, stats, msg, msg_len);
-    solver_structure sp = {0, 0, 0, 0};
+    solver_structure sp = {0, 0, 0, 0, 0};
     if (structure) sp = *structure;
+    if (sp.quad_tail < 0 || sp.quad_tail >= n) sp.quad_tail = 0;   /* not a tail x can have: none */
     /* rows premultiplied by M cannot be read without the structure they belong to */
     if (sp.mass_rows && (sp.n2 <= 0 || 2 * sp.n2 > n)) {
         put_msg(msg, msg_len, "solver: mass rows without a second-order structure (n2 = %d, n = %d)", sp.n2, n);

@@ -93,6 +93,10 @@ typedef struct {
     /* F holds discrete modes chosen at a step's start over the step (a rigid contact's decision tree): a step is then
      * never longer than the controller proposed, not even the call's last (solver.c: LAST_STRETCH) */
     int modes_held;
+    /* the last quad_tail components of x are quadratures (z' = a function of the others, never fed back: a rigid
+     * contact's impulses over a communication step): integrated by every stage, left out of the error test and of
+     * the first step's size, whose accuracy the state's own components decide */
+    int quad_tail;
 } solver_structure;
 
 /* the same, with a step-acceptance, a switch-location and a post-step callback (each NULL: none), and what is known

@@ -194,7 +194,11 @@ def vars_header(spec: ModelSpec, guid: str) -> str:
         "#ifndef CEDRA_VARS_H", "#define CEDRA_VARS_H", "", "#include <math.h>", '#include "cedra_var.h"', "",
         f"#define CEDRA_MODEL_IDENTIFIER {_c_str(spec.name)}", f"#define CEDRA_GUID {_c_str(guid)}",
         f"#define CEDRA_NQ {nq}", f"#define CEDRA_NZ {nz}", f"#define CEDRA_NI {ni}", f"#define CEDRA_NP {npar}",
-        f"#define CEDRA_NY {ny}", f"#define CEDRA_NS {ns}", "#define CEDRA_NX (2 * CEDRA_NQ + CEDRA_NZ)",
+        f"#define CEDRA_NY {ny}", f"#define CEDRA_NS {ns}",
+        # rigid contact: the contact impulses (Fx, Fy, Fn per contact) over the current communication step, the
+        # glue's quadratures behind wheel[i].F*_mean (model_glue.c)
+        f"#define CEDRA_NIMP {3 * spec.n_contacts if spec.contact == 'rigid' else 0}",
+        "#define CEDRA_NX (2 * CEDRA_NQ + CEDRA_NZ + CEDRA_NIMP)",
         f"#define CEDRA_RIGID {1 if spec.contact == 'rigid' else 0}", f"#define CEDRA_NC {spec.n_contacts}",
         f"#define CEDRA_HEIGHTMAP {1 if spec.heightmap_file else 0}",
         f"#define CEDRA_NSW {len(spec.switch_names)}", f"#define CEDRA_NH {spec.n_hold}",

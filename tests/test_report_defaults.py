@@ -15,7 +15,7 @@ def build(tmp_path_factory):
 
 def test_the_tight_settings_against_themselves_differ_by_nothing(build):
     r = D.compare("flat3d", build, tol=1e-9, method="rodas4")
-    assert r.ok and r.setting == "rodas4 tol 1e-09"
+    assert r.ok and r.setting == "rodas4 tol 1e-09" and r.force == "Fn"
     assert r.peak == r.peak_tight and r.peak_rel == 0.0 and r.dev_rel == 0.0
 
 
@@ -34,4 +34,13 @@ def test_main_writes_the_command_with_the_method(build, tmp_path):
     assert D.main(args) == 0
     text = (tmp_path / "defaults.md").read_text()
     assert "`python -m cedra report defaults --scene flat3d --tol 0.0001 --method ros34pw2`" in text
-    assert "| flat3d | 10 s | ros34pw2 tol 0.0001 |" in text
+    assert "| flat3d | 10 s | ros34pw2 tol 0.0001 | Fn |" in text
+
+
+def test_rigid_contact_is_compared_by_its_mean_forces():
+    """an impact is an impulse: for rigid contact the report compares wheel[i].Fn_mean (impulse / step)"""
+    import numpy as np
+    rows = np.arange(8.0).reshape(2, 4)
+    assert D._fn(["t", "wheel[1].Fn", "wheel[2].Fn", "body.x"], rows)[0] == "Fn"
+    force, fn = D._fn(["wheel[1].Fn", "wheel[1].Fn_mean", "wheel[2].Fn", "wheel[2].Fn_mean"], rows)
+    assert force == "Fn_mean" and np.array_equal(fn, rows[:, [1, 3]])

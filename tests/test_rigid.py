@@ -89,7 +89,8 @@ def bump_run(path, stop=8.0, values=None, rigid=True):
     f.start(values or {})
     ctrl = SpeedController()
     rows, xs, energy = [], [], []
-    want = names("Fn") + names("Fx") + names("Fy") + names("mode") + names("slip") + (names("gap") if rigid else [])
+    want = names("Fn") + names("Fx") + names("Fy") + names("mode") + names("slip") + \
+        (names("gap") + names("Fn_mean") if rigid else [])
     for k in range(1, int(round(stop / 0.01)) + 1):
         tau = ctrl(f.get(["body.vx"])[0])
         f.set({f"tau[{i}]": tau for i in WHEELS})
@@ -100,7 +101,7 @@ def bump_run(path, stop=8.0, values=None, rigid=True):
         energy.append(kin + pot - work)
     f.close()
     r = np.array(rows).reshape(len(rows), -1, 6)
-    quantities = ("Fn", "Fx", "Fy", "mode", "slip", "gap")[:r.shape[1]]
+    quantities = ("Fn", "Fx", "Fy", "mode", "slip", "gap", "Fn_mean")[:r.shape[1]]
     return np.array(xs), np.array(energy), {q: r[:, j, :] for j, q in enumerate(quantities)}
 
 
@@ -169,3 +170,35 @@ def test_drop_touches_down_and_settles(fmus):
     assert abs(end[6:12].sum() - 24 * 9.81) < 1e-3 * 24 * 9.81
     assert abs(end[-1]) < 1e-6
     assert np.max(np.diff(energy)) < 1e-9          # the landing impacts (with friction) only dissipate
+
+
+def test_mean_forces_carry_the_impacts_momentum(fmus):
+    """wheel[i].F*_mean is the contact impulse over the communication step / step, impacts included (an impact is
+    an impulse: the force outputs at the samples miss it). Dropped from rest and settled at rest, the rover's
+    momentum is the same at both ends, so the normal impulses sum to the weight's m g T and the tangential ones to
+    0 (flat ground: normals along Z). The sampled forces miss the landing: a check that this test can fail."""
+    f = RoverFMU(fmus["rigid"])
+    f.start({"start.settle": False, "start.z": 0.3, "start.theta4": -0.1418970546})
+    assert np.array_equal(f.get(names("Fn_mean")), f.get(names("Fn")))      # no step yet: the force there
+    dt, steps = 0.01, 200
+    mean_n = mean_t = sampled_n = 0.0
+    for k in range(1, steps + 1):
+        assert f.step(k * dt), f.messages
+        mean_n += f.get(names("Fn_mean")).sum() * dt
+        mean_t += f.get(names("Fx_mean")).sum() * dt
+        sampled_n += f.get(names("Fn")).sum() * dt
+    at_rest = f.get(["body.vz", "body.vx"])
+    f.close()
+    weight_impulse = 24 * 9.81 * steps * dt
+    assert np.all(np.abs(at_rest) < 1e-6)
+    assert abs(mean_n - weight_impulse) < 1e-8 * weight_impulse, (mean_n, weight_impulse)
+    assert abs(mean_t) < 1e-8 * weight_impulse, mean_t
+    assert abs(sampled_n - weight_impulse) > 0.01 * weight_impulse, (sampled_n, weight_impulse)
+
+
+def test_mean_forces_equal_the_forces_where_they_are_steady(bump):
+    """Back on flat ground after the bump every wheel sticks and its load changes slowly: the mean over a
+    step is the force at the step's end to within the load's change over the step."""
+    _, _, d = bump
+    steady = slice(-30, None)
+    assert np.all(np.abs(d["Fn_mean"][steady] - d["Fn"][steady]) < 1e-2 * np.maximum(1, d["Fn"][steady]))

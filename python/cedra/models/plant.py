@@ -225,6 +225,12 @@ class CedraModel:
                 o.append((_out(f"wheel[{k}].gap", "m", f"wheel {k} rim height above the terrain (negative: "
                                                          "penetration; in contact: the constraint drift)"),
                           -geo.depth))
+                # an impact is an impulse: what a rigid contact transmits over an interval converges with the
+                # motion, its force at one instant does not (the glue integrates the forces and adds the impacts)
+                for comp, what in (("Fn", "normal"), ("Fx", "longitudinal"), ("Fy", "lateral")):
+                    o.append((_out(f"wheel[{k}].{comp}_mean", "N",
+                                   f"wheel {k} {what} contact force averaged over the last communication step "
+                                   "(impulse / step, impacts included; at the start: the force there)"), 0))
         return o
 
     def _kinematic_outputs(self, wh, geo):
