@@ -140,3 +140,17 @@ theta4 = -0.2
     assert q0["z"] == pytest.approx(0.2, abs=1e-15) and q0["y"] == 0.0
     assert spec.stop_time == 2.0 and spec.output_interval == 0.01
     assert spec.solver == dict(method="rk4", tol=1e-5, h_max=0.002)
+
+
+def test_the_build_command_checks_every_scene_before_it_builds_any(tmp_path):
+    """`python -m cedra build` builds scenes in parallel, so every file is checked first: a bad one among good
+    ones fails with its file, key and reason, and nothing is generated"""
+    import subprocess
+    import sys
+    bad = write(tmp_path, BASE.replace('dims = "3d"', 'dims = "4d"'), "bad.toml")
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "cedra", "build", "bump2d", str(bad), "--out", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert str(bad) in r.stderr and "'dims'" in r.stderr and "4d" in r.stderr
+    assert not out.exists()
