@@ -57,5 +57,10 @@ def test_no_leak_and_no_error_under_valgrind():
 def test_planted_leak_is_found_by_valgrind():
     p = valgrind("hills3d", 2, defines=("FUZZ_PLANT_LEAK",))
     assert p.returncode == 3, p.stderr[-3000:]
-    m = re.search(r"definitely lost: ([\d,]+) bytes in 2 blocks", p.stderr)
-    assert m and int(m.group(1).replace(",", "")) > 0, p.stderr[-3000:]
+    # one planted block per cycle; valgrind calls a block "possibly lost" when a pointer into it is still lying
+    # around (seen once in a loaded full run: 1 definitely + 1 possibly lost), so the two counts together
+    lost = {kind: re.search(rf"{kind} lost: ([\d,]+) bytes in ([\d,]+) blocks", p.stderr)
+            for kind in ("definitely", "possibly")}
+    assert lost["definitely"] and int(lost["definitely"].group(1).replace(",", "")) > 0, p.stderr[-3000:]
+    blocks = sum(int(m.group(2).replace(",", "")) for m in lost.values() if m)
+    assert blocks == 2, p.stderr[-3000:]

@@ -331,3 +331,15 @@ def test_failed_and_timed_out_runs_are_recorded(tmp_path, bump2d_fmu):
     for r in read_table(load(slow).table):
         assert r["status"] == "timeout" and "more than 1 s of wall time" in r["reason"], r
         assert 0 < float(r["t_end"]) < 15.0
+
+
+def test_a_rigid_runs_peak_force_carries_the_impacts():
+    """On rigid contact a sweep's peak_Fn is of the mean forces (impulse / communication step): the rear wheel's
+    landing from the bump transmits ~607 N over its 0.01 s step, which the forces at the samples (at most ~220 N at
+    any tolerance) miss."""
+    path = fmu("bump2d_rigid", BUILD)
+    row = sw_mod.run_one(path.read_bytes(), "bump", {}, 6.5, 60.0)
+    assert row["status"] == "ok", row
+    assert 550 < row["peak_Fn"] < 700, row
+    # the ratio of the means: in the cone (mu = 0.8) up to the contact frame's turn within a step on the bump
+    assert 0.5 < row["peak_ratio"] < 0.85, row
