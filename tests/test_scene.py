@@ -154,3 +154,16 @@ def test_the_build_command_checks_every_scene_before_it_builds_any(tmp_path):
     assert r.returncode == 2
     assert str(bad) in r.stderr and "'dims'" in r.stderr and "4d" in r.stderr
     assert not out.exists()
+
+
+def test_the_build_command_refuses_two_scenes_of_one_name(tmp_path):
+    """two files naming the same scene would build into the same directory at once"""
+    import subprocess
+    import sys
+    a = write(tmp_path, BASE, "a.toml")
+    b = write(tmp_path, BASE, "b.toml")
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "cedra", "build", str(a), str(b), "--out", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "both build the FMU 't3d'" in r.stderr, r.stderr
+    assert not out.exists()

@@ -30,16 +30,23 @@ def cmd_build(args):
     from concurrent.futures import ProcessPoolExecutor
     from cedra.models.controller import CONTROLLERS
     from cedra.models.scene import SceneError, load, load_shipped, shipped
-    names = args.scenes or shipped() + list(CONTROLLERS)
-    dims = {}
+    names = list(dict.fromkeys(args.scenes or shipped() + list(CONTROLLERS)))
+    dims, fmu_names = {}, {}
     for name in names:              # every scene file is checked before any code is generated
         if name in CONTROLLERS:
+            fmu_names[name] = name
             continue
         try:
-            dims[name] = (load(name) if name.endswith(".toml") else load_shipped(name)).options.dims
+            scene = load(name) if name.endswith(".toml") else load_shipped(name)
         except SceneError as e:
             print(f"error: {e}", file=sys.stderr)
             return 2
+        dims[name] = scene.options.dims
+        if scene.name in fmu_names.values():      # two processes would build into the same directory
+            other = next(n for n, f in fmu_names.items() if f == scene.name)
+            print(f"error: {name} and {other} both build the FMU {scene.name!r}", file=sys.stderr)
+            return 2
+        fmu_names[name] = scene.name
     # The scenes build in parallel (one process each; a 3D scene's generated C takes 25-50 s to compile, a 2D one
     # 6-10 s): the 3D ones first, so that the short ones fill in behind them.
     order = sorted(names, key=lambda n: dims.get(n) != "3d")
