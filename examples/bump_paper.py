@@ -24,7 +24,8 @@ def run(out_dir="out/bump_paper", build_dir="build", stop_time=None, quiet=False
     col = {n: rows[:, k] for k, n in enumerate(names)}
     write_outputs(Path(out_dir), names, rows, torques, bump_terrain(path)[0])
     watch_run(out_dir, names, rows, path, "bump_paper: the paper's run", watch)
-    summary = dict(x_end=float(col["body.x"][-1]), peak_Fn=float(max(col[f"wheel[{i}].Fn"].max() for i in (1, 2, 5, 6))),
+    summary = dict(x_end=float(col["body.x"][-1]),
+                   peak_Fn=float(max(col[f"wheel[{i}].Fn"].max() for i in (1, 2, 5, 6))),
                    peak_tau=float(abs(torques).max()), wall=info["wall"])
     if not quiet:
         print(f"bump_paper: body.x {summary['x_end']:.3f} m after {stop_time:g} s, peak normal force "

@@ -1,7 +1,7 @@
 """The rolling hills of the shipped scene hills3d (terrain = "heightmap"): how its grid file was made, and a
 drive across it through the FMU.
 
-    python examples/hills.py            # rewrites python/cedra/models/scenes/hills3d.txt, then drives (prints a summary)
+    python examples/hills.py     # rewrites python/cedra/models/scenes/hills3d.txt, then drives (prints a summary)
 
 tests/test_heightmap.py checks that the shipped grid is exactly what heights() gives, and runs drive().
 """

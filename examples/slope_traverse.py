@@ -66,8 +66,8 @@ def run(out_dir="out/slope_traverse", build_dir="build", stop_time=None, quiet=F
     _plot(out, runs)
     if not quiet:
         for label, s in summary.items():
-            print(f"slope_traverse, {label}: lateral drift {100 * s['drift']:.1f} cm within {min(TRAVEL, s['travel']):.2f} "
-                  f"m of travel, mean |slip| {s['mean_slip']:.4f} m/s")
+            print(f"slope_traverse, {label}: lateral drift {100 * s['drift']:.1f} cm within "
+                  f"{min(TRAVEL, s['travel']):.2f} m of travel, mean |slip| {s['mean_slip']:.4f} m/s")
         print(f"-> {out}")
     return summary
 

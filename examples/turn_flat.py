@@ -19,7 +19,8 @@ STEP = 0.01                        # s, communication step = the controller's pe
 FMUS = ("flat3d", "drive3d")       # the FMUs run() opens (a sweep builds them first)
 # what a sweep may vary: name -> (default, min, max, meaning)
 PARAMETERS = {"speed_cmd": (SPEED, 0.0, 0.5, "m/s, commanded speed"),
-              "yaw_rate_cmd": (YAW_RATE, 0.05, 1.0, "rad/s, commanded yaw rate (a left turn: the scenario fits a circle)"),
+              "yaw_rate_cmd": (YAW_RATE, 0.05, 1.0,
+                               "rad/s, commanded yaw rate (a left turn: the scenario fits a circle)"),
               "mu": (0.8, 0.05, 2.0, "friction coefficient of the ground")}
 # what run() returns (besides the wall time): name -> meaning
 SUMMARY = {"yaw_rate": "rad/s, mean measured yaw rate after the start", "speed": "m/s, mean measured speed",
@@ -39,8 +40,9 @@ def run(out_dir="out/turn_flat", build_dir="build", stop_time=None, quiet=False,
     watch = params is None if watch is None else watch
     p = parameters(PARAMETERS, params)
     loop = DriveLoop(*(fmu(n, build_dir) for n in FMUS), plant_values={"mu": p["mu"]})
-    r = run_loop(loop, "turn_flat", stop_time, STEP, lambda t: {"cmd.v": p["speed_cmd"], "cmd.yaw_rate": p["yaw_rate_cmd"]},
-                 plus_watched(RECORD) if watch else RECORD, quiet)
+    commands = {"cmd.v": p["speed_cmd"], "cmd.yaw_rate": p["yaw_rate_cmd"]}
+    r = run_loop(loop, "turn_flat", stop_time, STEP, lambda t: commands, plus_watched(RECORD) if watch else RECORD,
+                 quiet)
     out = Path(out_dir)
     write_csv(out / "turn_flat.csv", r.names, r.rows)
     watch_run(out, r.names, r.rows, fmu("flat3d", build_dir),

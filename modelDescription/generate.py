@@ -204,7 +204,8 @@ def vars_header(spec: ModelSpec, guid: str) -> str:
         f"#define CEDRA_NSW {len(spec.switch_names)}", f"#define CEDRA_NH {spec.n_hold}",
         f"#define CEDRA_CONTROLLER {1 if spec.block == 'controller' else 0}",
         f"#define CEDRA_ND {len(spec.d_names)}",
-        f"#define CEDRA_PERIOD_PAR {[p.name for p in spec.params].index('ctrl.period') if spec.block == 'controller' else -1}",
+        "#define CEDRA_PERIOD_PAR "
+        f"{[p.name for p in spec.params].index('ctrl.period') if spec.block == 'controller' else -1}",
         f"#define CEDRA_NVARS {len(table)}", "",
         arr("CEDRA_SETTLE_IDX", "int", spec.settle_idx, str),
         arr("CEDRA_M_ORDER", "int", elimination_order(spec), str),

@@ -2,7 +2,8 @@
 
 The FMU under test is the toy model built by the FMU builder (`cedra.fmu.packaging.build_fmu(toy_model.toy_spec())`),
 once per test session (shared between pytest-xdist workers through a file lock), or any FMU given by the
-environment variable CEDRA_CHECK_FMU (e.g. the rover FMU: `CEDRA_CHECK_FMU=build/x.fmu pytest tests/test_fmu_checkers.py`).
+environment variable CEDRA_CHECK_FMU (e.g. the rover FMU:
+`CEDRA_CHECK_FMU=build/x.fmu pytest tests/test_fmu_checkers.py`).
 
 A checker that cannot run (no java/mvn, no cmake, Maven Central unreachable) makes its test FAIL: CI reaches
 the registries, so "unavailable" is a broken setup, not a reason to skip.

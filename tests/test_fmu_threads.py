@@ -1,9 +1,9 @@
 """Instances in threads: N = 4 instances stepped in 4 threads at once give, bit for bit, the results of the same
 runs one after another (the fuzzer executable's thread mode, tools/fuzz/fmu_fuzz.c --threads: C pthreads, the
 FMU linked in; bump2d and flat3d built with AddressSanitizer as for the fuzz tests, hills3d plain -O1 as for the
-valgrind test, to compile its large generated model once). Compared: every Real output at every communication point (100 steps
-of 0.01 s) and the serialized end state. Each thread drives a different scenario (its own torques), so results
-mixed between instances would show; the executable also checks the scenarios differ.
+valgrind test, to compile its large generated model once). Compared: every Real output at every communication
+point (100 steps of 0.01 s) and the serialized end state. Each thread drives a different scenario (its own
+torques), so results mixed between instances would show; the executable also checks the scenarios differ.
 
 hills3d runs with two different grids: threads 0 and 2 read the shipped grid, threads 1 and 3 a second one (the
 hills 1.3 times higher and the whole grid 5 cm up), each instance activating its own thread-local map."""

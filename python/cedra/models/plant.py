@@ -3,8 +3,8 @@ returns the ModelSpec (CasADi functions under the contract's fixed names, plus t
 
 Restriction (spec section 8): every one of the 17 full coordinates is either one of the scene's coordinates or
 the constant 0, so q_full = P q with a constant 0/1 matrix P. Forming Kane's equations with the scene's speeds
-as generalized speeds is the projection P' M P, P' f of the 3D equations (tested in tests/test_model_dynamics.py::test_projection):
-the planar model is the 3D model, not a second hand-written one.
+as generalized speeds is the projection P' M P, P' f of the 3D equations (tested in
+tests/test_model_dynamics.py::test_projection): the planar model is the 3D model, not a second hand-written one.
 """
 from __future__ import annotations
 

@@ -221,7 +221,8 @@ def step_cost(build: Path, stop_time=8.0, log=print) -> list[dict]:
                 attempts = r.steps + r.extra["rejected"]
                 rows.append(dict(scene=name, variant=label, ok=r.ok, cpu=r.cpu, steps=r.steps,
                                  rejected=r.extra["rejected"], evals=r.extra["rhs_evals"],
-                                 us_per_attempt=1e6 * r.cpu / attempts, evals_per_attempt=r.extra["rhs_evals"] / attempts,
+                                 us_per_attempt=1e6 * r.cpu / attempts,
+                                 evals_per_attempt=r.extra["rhs_evals"] / attempts,
                                  jacs_per_attempt=r.extra["jac_evals"] / attempts,
                                  la_us=1e6 * la["schur" if "Schur" in label else "dense"] if "rodas4" in label
                                  else None))

@@ -4,10 +4,10 @@
     r = run(load_shipped("bump3d"), terrain="hfield", dt=1e-3, stop_time=15.0)   # the spec section 10 run
 
 Every number comes from the scene (`Scene.parameters`, `Scene.inputs`, heightmap file) over the defaults of
-`cedra.rover.parameters` and the input table; the four-bar's closure (theta5) is `cedra.rover.mechanism.four_bar`, evaluated on
-those numbers: one source of truth, nothing typed twice. `mujoco` is an optional dependency (`pip install
-.[bench]`, which ./build.sh does); importing this module does not need it, the functions that build or run a
-model import it.
+`cedra.rover.parameters` and the input table; the four-bar's closure (theta5) is
+`cedra.rover.mechanism.four_bar`, evaluated on those numbers: one source of truth, nothing typed twice. `mujoco` is
+an optional dependency (`pip install .[bench]`, which ./build.sh does); importing this module does not need it, the
+functions that build or run a model import it.
 
 The mechanism (spec sections 2-4): a free body (m_B, diag(I_Bxx, I_Byy, I_Bzz) at the frame origin = mass
 center); two bogies on hinges about the body's y axis at P_L, P_R with wheels at +-bogie_half; the rear wheel 5
@@ -166,10 +166,12 @@ def _v(x):
 def _wheel(name, pos, p, indent):
     m, R = p["m_w"], p["R_w"]
     s = " " * indent
+    inertia = _v([0.25 * m * R * R, 0.5 * m * R * R, 0.25 * m * R * R])
     return (f'{s}<body name="{name}" pos="{_v(pos)}">\n'
             f'{s}  <joint name="{name}_spin" type="hinge" axis="0 1 0"/>\n'
-            f'{s}  <inertial pos="0 0 0" mass="{m!r}" diaginertia="{_v([0.25 * m * R * R, 0.5 * m * R * R, 0.25 * m * R * R])}"/>\n'
-            f'{s}  <geom name="{name}_geom" class="wheel" type="cylinder" size="{R!r} {WHEEL_HALF_WIDTH}" zaxis="0 1 0"/>\n'
+            f'{s}  <inertial pos="0 0 0" mass="{m!r}" diaginertia="{inertia}"/>\n'
+            f'{s}  <geom name="{name}_geom" class="wheel" type="cylinder" size="{R!r} {WHEEL_HALF_WIDTH}" '
+            f'zaxis="0 1 0"/>\n'
             f'{s}</body>\n')
 
 

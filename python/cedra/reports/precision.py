@@ -19,8 +19,9 @@ import numpy as np
 
 from cedra.models.scene import load_shipped
 from cedra.run.progress import Progress
-from cedra.reports.common import (Problem, Run, Schedule, errors, fmt, fmu_path, grid, md_table, position_names, fn_names,
-                     python_run_outputs, reference_outputs, run_casadi, run_fmu, run_scipy, torques)
+from cedra.reports.common import (Problem, Run, Schedule, errors, fmt, fmu_path, grid, md_table, position_names,
+                                  fn_names, python_run_outputs, reference_outputs, run_casadi, run_fmu, run_scipy,
+                                  torques)
 
 SAMPLE = 0.1            # input schedule period = the coarsest communication step
 REF_TOL = 1e-12

@@ -224,7 +224,8 @@ def write(results, out_dir: Path, command, wall_total):
                      fmt(r.finished), fmt(r.reached), r.status, r.reason[:160] or "-", fmt(r.steps),
                      fmt(r.rejected), fmt(r.wall), fmt(r.e_increase) if r.e_increase is not None else "-",
                      fmt(r.e_ref) if r.e_ref is not None else "-",
-                     fmt(r.e_tol) if r.e_tol is not None else "-", fmt(r.nan) + (f" at {r.nan_at:g} s" if r.nan else ""),
+                     fmt(r.e_tol) if r.e_tol is not None else "-",
+                     fmt(r.nan) + (f" at {r.nan_at:g} s" if r.nan else ""),
                      ("outside domain" if r.outside_domain else "slow" if r.timeout else "ok")
                      if r.acceptable else "**FAIL**"])
     bad = [r for r in results if not r.acceptable]
