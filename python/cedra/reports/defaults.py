@@ -105,7 +105,7 @@ def main(args) -> int:
         rows.append(r)
         if not quiet:
             print(f"{name:14s} {r.setting:18s} peak {r.force:7s} {r.peak:9.3f} N (tight {r.peak_tight:9.3f} N): "
-                  f"rel. diff {r.peak_rel:.2e}, max |dFn|/peak {r.dev_rel:.2e}, CPU {r.cpu:.2f} / {r.cpu_tight:.2f} s"
+                  f"rel. diff {r.peak_rel:.2e}, max |dF|/peak {r.dev_rel:.2e}, CPU {r.cpu:.2f} / {r.cpu_tight:.2f} s"
                   + ("" if r.ok else f"  [{r.message}]"), flush=True)
         progress(k + 1)
     progress.done()
