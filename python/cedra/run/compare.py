@@ -58,15 +58,17 @@ def _plot(out, names_c, rows_c, names_r, rows_r, torques, torques_r):
     for i, color in zip(SHOWN, ["C0", "C1", "C2", "C3"]):
         for names, rows, style, lab in ((names_c, rows_c, "-", "compliant"), (names_r, rows_r, "--", "rigid")):
             col = {n: rows[:, k] for k, n in enumerate(names)}
-            ax[0].plot(col["time"], col[f"wheel[{i}].Fn"], style, color=color, label=f"wheel {i} {lab}")
-            ax[1].plot(col["time"], col[f"wheel[{i}].Fx"], style, color=color)
+            # rigid: the mean over each 0.01 s step (impulse / step), which carries the impacts the samples miss
+            mean = "_mean" if f"wheel[{i}].Fn_mean" in col else ""
+            ax[0].plot(col["time"], col[f"wheel[{i}].Fn{mean}"], style, color=color, label=f"wheel {i} {lab}")
+            ax[1].plot(col["time"], col[f"wheel[{i}].Fx{mean}"], style, color=color)
             if lab == "rigid":
                 ax[2].step(col["time"], col[f"wheel[{i}].mode"] + 0.05 * SHOWN.index(i), color=color,
                            where="post", label=f"wheel {i}")
     ax[3].plot(rows_c[:, 0], torques[:len(rows_c)], "k-", label="compliant")
     ax[3].plot(rows_r[:, 0], torques_r[:len(rows_r)], "k--", label="rigid")
     ax[3].legend(fontsize=7)
-    for a, lab in zip(ax, ["normal force [N]", "friction force Fx [N]", "rigid mode (0 air, 1 stick, 2 slip)",
+    for a, lab in zip(ax, ["normal force [N] (rigid: mean per step)", "friction force Fx [N] (rigid: mean per step)", "rigid mode (0 air, 1 stick, 2 slip)",
                            "motor torque [N.m]"]):
         a.set_ylabel(lab)
         a.grid(True)

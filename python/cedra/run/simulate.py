@@ -37,7 +37,7 @@ def wheel_names(quantity):
 
 def recorded(fmu: RoverFMU) -> list[str]:
     names = ["body.x", "body.z", "body.pitch", "body.vx", "bogie.theta[1]", "fork.theta4"]
-    for q in ("Fn", "Fx", "mode", "omega", "cx", "cz", "px", "pz", "Fn_mean"):     # Fn_mean: rigid contact
+    for q in ("Fn", "Fx", "mode", "omega", "cx", "cz", "px", "pz", "Fn_mean", "Fx_mean"):     # *_mean: rigid
         names += wheel_names(q)
     names += ["energy.kinetic", "energy.potential", "energy.work", "solver.steps", "solver.rejected",
               "solver.rhs_evals"]
