@@ -131,8 +131,15 @@ static int find_var(const char *name, int kind) {
 }
 #endif
 
+#if CEDRA_RIGID
+static int moreau_step(void *ctx, double t, double h, double *x);
+#define OWN_STEP moreau_step
+#else
+#define OWN_STEP NULL
+#endif
+
 const solver_structure *model_structure(void) {
-    static const solver_structure structure = {CEDRA_SCHUR_N2, MASS_ROWS, 1, CEDRA_RIGID, NIMP};
+    static const solver_structure structure = {CEDRA_SCHUR_N2, MASS_ROWS, 1, CEDRA_RIGID, NIMP, OWN_STEP};
     return &structure;
 }
 
@@ -220,16 +227,9 @@ int model_check(model_ws *ws, const double *q, const double *u) {
     return 1;
 }
 
-/* M at q into M, f and g at (q, u); the arguments stay set to (q, u, inp, par) for a following call */
-static int eval_M_f(model_ws *ws, const double *q, const double *u, double t, double *M) {
+/* f and g at (q, u); the arguments stay set to (q, u, inp, par) for a following call */
+static int eval_f(model_ws *ws, const double *q, const double *u, double t) {
     ws->dyn_valid = 0;     /* ws->f and g are about to change */
-    ws->arg[0] = q;
-    ws->arg[1] = ws->par;
-    ws->res[0] = M;
-    if (cedra_M(ws->arg, ws->res, ws->iw, ws->w, 0)) {
-        snprintf(ws->msg, sizeof ws->msg, "cedra_M failed at t=%.17g", t);
-        return 1;
-    }
     ws->arg[0] = q;
     ws->arg[1] = u;
     ws->arg[2] = ws->inp;
@@ -241,6 +241,19 @@ static int eval_M_f(model_ws *ws, const double *q, const double *u, double t, do
         return 1;
     }
     return 0;
+}
+
+/* M at q into M, f and g at (q, u); the arguments stay set to (q, u, inp, par) for a following call */
+static int eval_M_f(model_ws *ws, const double *q, const double *u, double t, double *M) {
+    ws->dyn_valid = 0;
+    ws->arg[0] = q;
+    ws->arg[1] = ws->par;
+    ws->res[0] = M;
+    if (cedra_M(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        snprintf(ws->msg, sizeof ws->msg, "cedra_M failed at t=%.17g", t);
+        return 1;
+    }
+    return eval_f(ws, q, u, t);
 }
 
 /* b := M^-1 b with the factors of eval_dynamics */
@@ -472,14 +485,14 @@ long model_take_located(model_ws *ws, int k, const char **name, double *t0, doub
     return n;
 }
 
-int model_post_step(void *ctx, double t, double *x) {
 #if CEDRA_RIGID
-    model_ws *ws = (model_ws *)ctx;
-    activate(ws);
+/* Gauss-Newton on the gaps: project x's positions until no contact penetrates; 1 if they moved, 0 if not, -1 on
+ * failure (ws->msg) */
+static int project_positions(model_ws *ws, double t, double *x) {
     rigid_params p = rigid_settings(ws);
     char why[160];
     int r = 0;
-    for (int it = 0; it < 30; it++) {    /* Gauss-Newton on the gaps: stop when no contact penetrates */
+    for (int it = 0; it < 30; it++) {
         if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
         int rk = rigid_project(NQ, NC, x, ws->Mraw, ws->W, ws->gap, &p, ws->rwork, ws->riwork, why, sizeof why);
         if (rk < 0) {
@@ -489,6 +502,51 @@ int model_post_step(void *ctx, double t, double *x) {
         if (rk == 0) break;
         r = 1;
     }
+    return r;
+}
+
+/* solver.method moreau (solver.h own_step): one Moreau-Jean step, midpoint rule. Positions to the midpoint
+ * q + h/2 u, where M, f and the contacts are evaluated; the velocities jump to u+ by the impulse problem of the
+ * contacts touching there (rigid_moreau: forces and impacts alike are impulses over the step, so a step carries
+ * no mode from its start); positions from the midpoint with u+. The impulses P add to the step's (wheel[k].F*_mean),
+ * the work integral gets h times the power at (q_mid, (u + u+) / 2). Then penetration is projected out as after
+ * any other method's step (the impacts are in the step already). */
+static int moreau_step(void *ctx, double t, double h, double *x) {
+    model_ws *ws = (model_ws *)ctx;
+    activate(ws);
+    double qm[NQ], u0[NQ];
+    for (int j = 0; j < NQ; j++) qm[j] = x[j] + 0.5 * h * x[NQ + j];
+    memcpy(u0, x + NQ, sizeof u0);
+    if (!model_check(ws, qm, x + NQ)) return 1;
+    if (eval_rigid_terms(ws, qm, x + NQ, t + 0.5 * h)) return 1;
+    rigid_params p = rigid_settings(ws);
+    char why[160];
+    if (rigid_moreau(NQ, NC, x + NQ, ws->impulse, ws->Mraw, ws->f, h, ws->W, ws->vc, ws->gap, &p, ws->rwork,
+                     ws->riwork, why, sizeof why)) {
+        snprintf(ws->msg, sizeof ws->msg, "%s at t=%.17g", why, t);
+        return 1;
+    }
+    double um[NQ];     /* the work integral at the step's mean velocity: the torques' work tau (q+ - q) exactly */
+    for (int j = 0; j < NQ; j++) {
+        um[j] = 0.5 * (u0[j] + x[NQ + j]);
+        x[j] = qm[j] + 0.5 * h * x[NQ + j];
+    }
+    if (NZ > 0 && eval_f(ws, qm, um, t + 0.5 * h)) return 1;
+    for (int i = 0; i < NZ; i++) x[2 * NQ + i] += h * ws->g[i];
+    for (int i = 0; i < NIMP; i++) x[IMP + i] += ws->impulse[i];
+    ws->have_modes = 0;        /* the outputs' decision starts from the state, as after any other step */
+    return project_positions(ws, t + h, x) < 0;
+}
+#endif
+
+int model_post_step(void *ctx, double t, double *x) {
+#if CEDRA_RIGID
+    model_ws *ws = (model_ws *)ctx;
+    activate(ws);
+    rigid_params p = rigid_settings(ws);
+    char why[160];
+    int r = project_positions(ws, t, x);
+    if (r < 0) return r;
     if (eval_rigid_terms(ws, x, x + NQ, t)) return -1;
     int ri = rigid_impact(NQ, NC, x + NQ, ws->impulse, ws->Mraw, ws->W, ws->vc, ws->gap, &p, ws->rwork,
                           ws->riwork, why, sizeof why);

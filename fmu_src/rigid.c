@@ -449,25 +449,17 @@ int rigid_project(int nq, int nc, double *q, const double *M, const double *W, c
     return 0;
 }
 
-int rigid_impact(int nq, int nc, double *u, double *impulse, const double *M, const double *W, const double *vc,
-                 const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
-    /* velocities: an inelastic impact with Coulomb friction when a touching wheel approaches the ground. The
-     * impulses solve the same complementarity problem as the forces, one level down (M du = W' L, the
-     * constraint values are the post-impact contact velocities, target 0): every touching wheel starts sticking
-     * (the impact stops its contact point), a wheel that would need a pulling impulse leaves the impact, a
-     * sticking impulse outside the cone mu L_n slides at the cone. A frictionless impact would let a wheel that
-     * hits a steep face glance off it and hop, where a real wheel grips and climbs. */
-    int approaching = 0;
-    for (int k = 0; k < nc; k++)
-        if (gap[k] <= p->gap_tol && vc[3 * k + 2] < -IMPACT_SPEED) approaching = 1;
-    if (!approaching) return 0;
-    double *Mlu = work, *zero = Mlu + (size_t)nq * nq, *zero_target = zero + nq, *du = zero_target + 3 * nc,
-           *L = du + nq, *y = L + 3 * nc, *dir = y + 3 * nc, *entry_dir = dir + 2 * nc, *scratch = entry_dir + 2 * nc;
-    int *piv = iwork, *touching = piv + nq, *entry = touching + nc, *mode = entry + nc, *iscratch = mode + nc;
-    if (factor_mass(nq, M, Mlu, piv, msg, msg_len)) return -1;
-    memset(zero, 0, sizeof(double) * nq);
+/* The impulse problem of an impact (x0 = 0) or of a Moreau-Jean step (x0 = h M^-1 f, the free velocity change):
+ * M du = M x0 + W' L with the post-step contact velocities W (u + du) = vc + W du as the constraint values, target
+ * 0, every touching contact entering it sticking. du and L; 0, or 1 with the reason in msg. */
+static int impulse_problem(int nq, int nc, const double *Mlu, const int *piv, const double *x0, const double *W,
+                           const double *vc, const double *gap, const rigid_params *p, double *du, double *L,
+                           double *work, int *iwork, char *msg, size_t msg_len) {
+    double *zero_target = work, *y = zero_target + 3 * nc, *dir = y + 3 * nc, *entry_dir = dir + 2 * nc,
+           *scratch = entry_dir + 2 * nc;
+    int *touching = iwork, *entry = touching + nc, *mode = entry + nc, *iscratch = mode + nc;
     memset(zero_target, 0, sizeof(double) * 3 * (size_t)nc);
-    contact_lcp s = {.nq = nq, .nc = nc, .Mlu = Mlu, .piv = piv, .x0 = zero, .W = W, .bias = vc,
+    contact_lcp s = {.nq = nq, .nc = nc, .Mlu = Mlu, .piv = piv, .x0 = x0, .W = W, .bias = vc,
                      .target = zero_target, .mu = p->mu, .touching = touching, .entry = entry,
                      .entry_dir = entry_dir};
     lcp_scratch(&s, scratch, iscratch);
@@ -481,8 +473,44 @@ int rigid_impact(int nq, int nc, double *u, double *impulse, const double *M, co
         dir[2 * k + 1] = 0;
     }
     find_aliases(&s, gap);
+    return lcp_decide(&s, mode, dir, du, L, y, msg, msg_len);
+}
+
+int rigid_moreau(int nq, int nc, double *u, double *impulse, const double *M, const double *f, double h,
+                 const double *W, const double *vc, const double *gap, const rigid_params *p, double *work, int *iwork,
+                 char *msg, size_t msg_len) {
+    double *Mlu = work, *x0 = Mlu + (size_t)nq * nq, *du = x0 + nq, *scratch = du + nq;
+    int *piv = iwork;
+    if (factor_mass(nq, M, Mlu, piv, msg, msg_len)) return 1;
+    for (int j = 0; j < nq; j++) x0[j] = h * f[j];
+    linalg_lu_solve(nq, Mlu, piv, x0);
     char why[160];
-    if (lcp_decide(&s, mode, dir, du, L, y, why, sizeof why)) {
+    if (impulse_problem(nq, nc, Mlu, piv, x0, W, vc, gap, p, du, impulse, scratch, iwork + nq, why, sizeof why)) {
+        snprintf(msg, msg_len, "moreau step: %s", why);
+        return 1;
+    }
+    for (int j = 0; j < nq; j++) u[j] += du[j];
+    return 0;
+}
+
+int rigid_impact(int nq, int nc, double *u, double *impulse, const double *M, const double *W, const double *vc,
+                 const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len) {
+    /* velocities: an inelastic impact with Coulomb friction when a touching wheel approaches the ground. The
+     * impulses solve the same complementarity problem as the forces, one level down (M du = W' L, the
+     * constraint values are the post-impact contact velocities, target 0): every touching wheel starts sticking
+     * (the impact stops its contact point), a wheel that would need a pulling impulse leaves the impact, a
+     * sticking impulse outside the cone mu L_n slides at the cone. A frictionless impact would let a wheel that
+     * hits a steep face glance off it and hop, where a real wheel grips and climbs. */
+    int approaching = 0;
+    for (int k = 0; k < nc; k++)
+        if (gap[k] <= p->gap_tol && vc[3 * k + 2] < -IMPACT_SPEED) approaching = 1;
+    if (!approaching) return 0;
+    double *Mlu = work, *zero = Mlu + (size_t)nq * nq, *du = zero + nq, *L = du + nq, *scratch = L + 3 * nc;
+    int *piv = iwork;
+    if (factor_mass(nq, M, Mlu, piv, msg, msg_len)) return -1;
+    memset(zero, 0, sizeof(double) * nq);
+    char why[160];
+    if (impulse_problem(nq, nc, Mlu, piv, zero, W, vc, gap, p, du, L, scratch, iwork + nq, why, sizeof why)) {
         snprintf(msg, msg_len, "impact: %s", why);
         return -1;
     }

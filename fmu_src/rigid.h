@@ -54,4 +54,12 @@ int rigid_project(int nq, int nc, double *q, const double *M, const double *W, c
 int rigid_impact(int nq, int nc, double *u, double *impulse, const double *M, const double *W, const double *vc,
                  const double *gap, const rigid_params *p, double *work, int *iwork, char *msg, size_t msg_len);
 
+/* One Moreau-Jean step's velocities (the caller evaluated M, f, W, vc and gap at the step's midpoint positions
+ * q + h/2 u): M (u+ - u) = h f + W' P with the contacts touching there (gap <= gap_tol) decided on the post-step
+ * contact velocities like an impact (stick: W u+ = 0; slip: normal row, |P_t| = mu P_n; no pulling impulse).
+ * u is replaced by u+, impulse (3 nc) gets P (per contact: x, y, n in the contact frame); 0, or 1 (msg). */
+int rigid_moreau(int nq, int nc, double *u, double *impulse, const double *M, const double *f, double h,
+                 const double *W, const double *vc, const double *gap, const rigid_params *p, double *work, int *iwork,
+                 char *msg, size_t msg_len);
+
 #endif

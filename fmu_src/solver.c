@@ -159,6 +159,30 @@ static int rk4(const solver_settings *s, int n, double *x, double t0, double t1,
     return 0;
 }
 
+/* solver.method moreau: the model's own time stepper in fixed steps of h_max (the last one ends on t1) under the
+ * same budgets as RK4; a step of its own is complete (no post-step callback) */
+static int own_steps(const solver_settings *s, int n, double *x, double t0, double t1,
+                     int (*step)(void *, double, double, double *), void *ctx, solver_stats *st, char *msg,
+                     size_t msg_len) {
+    if (!step) {
+        put_msg(msg, msg_len, "moreau: this model has no time stepper of its own (rigid contact scenes have one)");
+        return 1;
+    }
+    const double h = s->h_max, start = wall_now();
+    double ns = ceil((t1 - t0) / h - 1e-12);
+    long nsteps = ns < 1 ? 1 : (long)ns;
+    for (long k = 0; k < nsteps; k++) {
+        if (k > 0 && over_wall_budget(s, start, "moreau", k, t0 + (double)k * h, t1, msg, msg_len)) return 1;
+        double ta = t0 + (double)k * h, tb = (k == nsteps - 1) ? t1 : t0 + (double)(k + 1) * h;
+        if (step(ctx, ta, tb - ta, x) || !all_finite(n, x)) {
+            put_msg(msg, msg_len, "moreau: the step from t = %.15g (h = %.3g) failed", ta, tb - ta);
+            return 1;
+        }
+        st->steps++;
+    }
+    return 0;
+}
+
 /* ------------------------------------------------------------------------------------------------------------- */
 /* Dormand & Prince 5(4), coefficients from Hairer, Norsett & Wanner, Solving ODE I, Table II.5.2 (dopri5.f). */
 
@@ -768,7 +792,7 @@ double solver_locate_switches(int nsw, const double *s0, const double *s1, doubl
 double solver_time_resolution(double t) { return 1e-12 * fmax(1.0, fabs(t)); }
 
 int solver_check(const solver_settings *s, double t0, double t1, char *msg, size_t msg_len) {
-    static const char *const names[SOLVER_N_METHODS] = {"rk4", "dopri5", "rodas4", "ros34pw2"};
+    static const char *const names[SOLVER_N_METHODS] = {"rk4", "dopri5", "rodas4", "ros34pw2", "moreau"};
     if (msg && msg_len) msg[0] = '\0';
     if (s->method < 0 || s->method >= SOLVER_N_METHODS) {
         put_msg(msg, msg_len, "solver: unknown method %d", s->method);
@@ -783,7 +807,7 @@ int solver_check(const solver_settings *s, double t0, double t1, char *msg, size
         put_msg(msg, msg_len, "%s: h_max must be positive and finite (h_max = %g)", name, s->h_max);
         return 1;
     }
-    if (s->method != SOLVER_RK4 && !(s->tol > 0)) {
+    if (s->method != SOLVER_RK4 && s->method != SOLVER_MOREAU && !(s->tol > 0)) {
         put_msg(msg, msg_len, "%s: tol must be positive (tol = %g)", name, s->tol);
         return 1;
     }
@@ -816,8 +840,9 @@ int solver_integrate_post(const solver_settings *s, int n, double *x, double t0,
     }
     if (n <= 0 || t1 == t0) return 0;   /* nothing to integrate */
     if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, post, ctx, work, stats, msg, msg_len);
-    solver_structure sp = {0, 0, 0, 0, 0};
+    solver_structure sp = {0, 0, 0, 0, 0, NULL};
     if (structure) sp = *structure;
+    if (s->method == SOLVER_MOREAU) return own_steps(s, n, x, t0, t1, sp.own_step, ctx, stats, msg, msg_len);
     if (sp.quad_tail < 0 || sp.quad_tail >= n) sp.quad_tail = 0;   /* not a tail x can have: none */
     /* rows premultiplied by M cannot be read without the structure they belong to */
     if (sp.mass_rows && (sp.n2 <= 0 || 2 * sp.n2 > n)) {

@@ -5,8 +5,9 @@
 
 #include <stddef.h>
 
-enum solver_method { SOLVER_RK4 = 0, SOLVER_DOPRI5 = 1, SOLVER_RODAS4 = 2, SOLVER_ROS34PW2 = 3 };
-#define SOLVER_N_METHODS 4
+/* SOLVER_MOREAU: a model's own fixed-step time stepper (solver_structure.own_step; rigid contact's Moreau-Jean) */
+enum solver_method { SOLVER_RK4 = 0, SOLVER_DOPRI5 = 1, SOLVER_RODAS4 = 2, SOLVER_ROS34PW2 = 3, SOLVER_MOREAU = 4 };
+#define SOLVER_N_METHODS 5
 
 /* Return 0 on success; nonzero means the state cannot be evaluated (the callback has written why
  * into its context; the solver reports failure). */
@@ -97,6 +98,11 @@ typedef struct {
      * contact's impulses over a communication step): integrated by every stage, left out of the error test and of
      * the first step's size, whose accuracy the state's own components decide */
     int quad_tail;
+    /* a time stepper of the model's own (NULL: none), which solver.method moreau runs in fixed steps of h_max: one
+     * step from (t, x) over h in place; 0, or nonzero on failure (the reason in the callback's context). The
+     * rigid contact's Moreau-Jean scheme: forces and impacts as impulses over a step, which converge with h where
+     * an integrator of the held-mode forces, switching modes at step ends, does not. */
+    int (*own_step)(void *ctx, double t, double h, double *x);
 } solver_structure;
 
 /* the same, with a step-acceptance, a switch-location and a post-step callback (each NULL: none), and what is known

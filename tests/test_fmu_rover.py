@@ -96,6 +96,8 @@ def test_bad_input_is_refused_with_a_reason(fmu_paths):
     assert any("R_w" in m for m in msg), msg
     msg = refused(f, lambda: f.fmu.setReal([v["solver.tol"].valueReference], [-1e-6]))
     assert any("solver.tol" in m for m in msg), msg
+    msg = refused(f, lambda: f.fmu.setInteger([v["solver.method"].valueReference], [4]))   # moreau: rigid only
+    assert any("solver.method" in m and "<= 3" in m for m in msg), msg
     msg = refused(f, lambda: f.fmu.setReal([999999], [1.0]))
     assert any("999999" in m for m in msg), msg
     f.fmu.exitInitializationMode()

@@ -34,7 +34,7 @@ def test_main_writes_the_command_with_the_method(build, tmp_path):
     assert D.main(args) == 0
     text = (tmp_path / "defaults.md").read_text()
     assert "`python -m cedra report defaults --scene flat3d --tol 0.0001 --method ros34pw2`" in text
-    assert "| flat3d | 10 s | ros34pw2 tol 0.0001 | Fn |" in text
+    assert "| flat3d | 10 s | ros34pw2 tol 0.0001 | rodas4 tol 1e-9 | Fn |" in text
 
 
 def test_rigid_contact_is_compared_by_its_mean_forces():
@@ -44,3 +44,9 @@ def test_rigid_contact_is_compared_by_its_mean_forces():
     assert D._fn(["t", "wheel[1].Fn", "wheel[2].Fn", "body.x"], rows)[0] == "Fn"
     force, fn = D._fn(["wheel[1].Fn", "wheel[1].Fn_mean", "wheel[2].Fn", "wheel[2].Fn_mean"], rows)
     assert force == "Fn_mean" and np.array_equal(fn, rows[:, [1, 3]])
+
+
+def test_the_largest_step_can_be_set(build):
+    r = D.compare("flat3d", build, h_max=0.005)
+    assert r.ok and r.setting == "rodas4 tol 1e-06 h_max 0.005" and r.tight == "rodas4 tol 1e-9"
+    assert r.peak_rel <= D.CRITERION

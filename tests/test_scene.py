@@ -167,3 +167,13 @@ def test_the_build_command_refuses_two_scenes_of_one_name(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "both build the FMU 't3d'" in r.stderr, r.stderr
     assert not out.exists()
+
+
+def test_moreau_is_for_rigid_contact_only(tmp_path):
+    p = write(tmp_path, BASE.replace('method = "rk4"', 'method = "moreau"'))
+    with pytest.raises(sc.SceneError) as e:
+        sc.load(p)
+    assert str(e.value).startswith(f"{p}: key 'solver.method': moreau is the rigid contact's own"), str(e.value)
+    rigid = write(tmp_path, BASE.replace('method = "rk4"', 'method = "moreau"').replace(
+        'contact = "compliant"', 'contact = "rigid"').replace("steering = true", "steering = false"), "r.toml")
+    assert sc.load(rigid).solver["method"] == "moreau"

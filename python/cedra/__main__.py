@@ -162,6 +162,7 @@ def main(argv=None):
                                             "scene's defaults")
     r.add_argument("--method", choices=list(SOLVER_METHODS),
                    help="defaults: compare this solver (at the scene's tolerance, or --tol) instead of the defaults")
+    r.add_argument("--h-max", type=float, help="defaults: with this solver.h_max (rk4's and moreau's fixed step)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
     from cedra.run.watch import add_parser as add_watch_parser

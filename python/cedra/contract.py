@@ -61,7 +61,8 @@ import casadi as ca
 
 # the largest solver budgets of one fmi2DoStep a scene or a user may set (the FMU's variables say the same)
 # solver.method = index: the embedded solvers (enum solver_method in fmu_src/solver.h)
-SOLVER_METHODS = ("rk4", "dopri5", "rodas4", "ros34pw2")
+# (moreau: rigid contact's own Moreau-Jean time stepping, fixed step h_max; rigid scenes only)
+SOLVER_METHODS = ("rk4", "dopri5", "rodas4", "ros34pw2", "moreau")
 
 MAX_STEPS_LIMIT = 2**31 - 1       # an fmi2Integer
 MAX_WALL_LIMIT = 1e6              # s: finite, so a call always has a bound

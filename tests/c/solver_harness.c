@@ -111,7 +111,7 @@ int harness_run_w(int problem, const double *par, double tol, double h_max, int 
     solver_settings s = {SOLVER_ROS34PW2, tol, h_max, 1000000, 100.0};
     solver_stats st = {(long)stats_io[0], (long)stats_io[1], (long)stats_io[2], (long)stats_io[3], stats_io[4],
                        (long)stats_io[5]};
-    solver_structure sp = {0, 0, autonomous, 0, 0};
+    solver_structure sp = {0, 0, autonomous, 0, 0, NULL};
     w_jac_scale = jac_scale;
     int rc = solver_integrate_post(&s, n, x, t0, t1, rhs, scaled_jac, NULL, NULL, NULL, &c, work, &st, msg,
                                    (size_t)msg_len, &sp, keep);
@@ -225,7 +225,7 @@ int harness_ball(int method, double tol, double h_max, double z0, double t_end, 
     solver_stats st = {0, 0, 0, 0, 0, 0};
     double x[2] = {z0, 0}, work[64];
     if (solver_workspace_size(method, 2) > 64) return -1;
-    solver_structure sp = {n2, 0, 0, 0, 0};
+    solver_structure sp = {n2, 0, 0, 0, 0, NULL};
     int rc = solver_integrate_post(&s, 2, x, 0, t_end, ball_rhs, ball_jac, NULL, with_locate ? ball_locate : NULL,
                                    NULL, &c, work, &st, msg, (size_t)msg_len, &sp, NULL);
     out[0] = c.located; out[1] = c.t0; out[2] = c.t1; out[3] = (double)c.cuts;

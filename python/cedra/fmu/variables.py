@@ -60,12 +60,19 @@ def solver_method_index(method) -> int:
     return m
 
 
+def solver_methods(spec: ModelSpec) -> int:
+    """how many of SOLVER_METHODS the model's FMU offers: moreau (the last) is rigid contact's own"""
+    return len(SOLVER_METHODS) - (spec.contact != "rigid")
+
+
 def solver_defaults(spec: ModelSpec) -> dict:
     s = dict(SOLVER_DEFAULTS)
     s.update(spec.solver or {})
     unknown = set(s) - set(SOLVER_DEFAULTS)
     if unknown:
         raise ValueError(f"model {spec.name}: unknown solver settings {sorted(unknown)}")
+    if solver_method_index(s["method"]) >= solver_methods(spec):
+        raise ValueError(f"model {spec.name}: solver method {s['method']!r} is for rigid contact only")
     return dict(method=solver_method_index(s["method"]), tol=float(s["tol"]), h_max=float(s["h_max"]),
                 max_steps=int(s["max_steps"]), max_wall_time=float(s["max_wall_time"]))
 
@@ -147,8 +154,10 @@ def _plant_rows(spec: ModelSpec, add) -> None:
     sd = solver_defaults(spec)
     add(name="solver.method", causality="parameter", variability="fixed", initial="exact", start=sd["method"],
         unit=None, description="embedded solver: 0 RK4 (fixed step h_max), 1 DOPRI5, 2 RODAS4, 3 ROS34PW2 "
-                                 "(Rosenbrock-W: keeps its Jacobian over steps)", type="Integer",
-        kind="solver", index=0, min=0, max=len(SOLVER_METHODS) - 1)
+                                 "(Rosenbrock-W: keeps its Jacobian over steps)" +
+                                 (", 4 MOREAU (Moreau-Jean time stepping of the rigid contact, fixed step h_max: "
+                                  "forces and impacts as impulses over a step)" if spec.contact == "rigid" else ""),
+        type="Integer", kind="solver", index=0, min=0, max=solver_methods(spec) - 1)
     add(name="solver.tol", causality="parameter", variability="fixed", initial="exact", start=sd["tol"],
         unit="1", description="relative and absolute tolerance of the adaptive solvers (> 0); the importer's "
         "fmi2SetupExperiment tolerance replaces the default unless this parameter is set", type="Real",

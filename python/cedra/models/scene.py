@@ -185,6 +185,8 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
         else:
             _fail(path, k, "unknown key (known: method, tol, h_max, max_steps, max_wall_time)")
 
+    if solver["method"] == "moreau" and contact != "rigid":
+        _fail(path, "solver.method", "moreau is the rigid contact's own time stepping (contact = \"rigid\")")
     opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked,
                        heightmap=heightmap_file, drives=drives)
     scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path))
