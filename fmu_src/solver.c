@@ -169,7 +169,9 @@ static int own_steps(const solver_settings *s, int n, double *x, double t0, doub
         return 1;
     }
     const double h = s->h_max, start = wall_now();
-    double ns = ceil((t1 - t0) / h - 1e-12);
+    /* an interval that is a multiple of h up to the rounding of t (0.01 s at t = 15 s is 0.01 +- 2e-15, 100 steps of
+     * 1e-4 and 2e-11 of one) takes no sliver step: a remainder below 1e-9 steps stretches the last one */
+    double ns = ceil((t1 - t0) / h - 1e-9);
     long nsteps = ns < 1 ? 1 : (long)ns;
     for (long k = 0; k < nsteps; k++) {
         if (k > 0 && over_wall_budget(s, start, "moreau", k, t0 + (double)k * h, t1, msg, msg_len)) return 1;
