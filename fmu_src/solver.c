@@ -105,6 +105,7 @@ size_t solver_workspace_size(int method, int n) {
     case SOLVER_DOPRI5: return 9 * N;                /* k1..k7, stage state (then error), xnew */
     case SOLVER_RODAS4:                              /* f0, f_t, k1..k6, stage state, stage F; J, M, W */
     case SOLVER_ROS34PW2: return 10 * N + 3 * N * N; /* the same layout (k1..k4 and the error in k6's place) */
+    case SOLVER_MOREAU: return N;                    /* the state before the step (a failed step is undone) */
     default: return 0;
     }
 }
@@ -162,8 +163,8 @@ static int rk4(const solver_settings *s, int n, double *x, double t0, double t1,
 /* solver.method moreau: the model's own time stepper in fixed steps of h_max (the last one ends on t1) under the
  * same budgets as RK4; a step of its own is complete (no post-step callback) */
 static int own_steps(const solver_settings *s, int n, double *x, double t0, double t1,
-                     int (*step)(void *, double, double, double *), void *ctx, solver_stats *st, char *msg,
-                     size_t msg_len) {
+                     int (*step)(void *, double, double, double *), void *ctx, double *work, solver_stats *st,
+                     char *msg, size_t msg_len) {
     if (!step) {
         put_msg(msg, msg_len, "moreau: this model has no time stepper of its own (rigid contact scenes have one)");
         return 1;
@@ -176,7 +177,9 @@ static int own_steps(const solver_settings *s, int n, double *x, double t0, doub
     for (long k = 0; k < nsteps; k++) {
         if (k > 0 && over_wall_budget(s, start, "moreau", k, t0 + (double)k * h, t1, msg, msg_len)) return 1;
         double ta = t0 + (double)k * h, tb = (k == nsteps - 1) ? t1 : t0 + (double)(k + 1) * h;
+        memcpy(work, x, sizeof(double) * (size_t)n);
         if (step(ctx, ta, tb - ta, x) || !all_finite(n, x)) {
+            memcpy(x, work, sizeof(double) * (size_t)n);     /* x stays the last completed step's */
             put_msg(msg, msg_len, "moreau: the step from t = %.15g (h = %.3g) failed", ta, tb - ta);
             return 1;
         }
@@ -844,7 +847,7 @@ int solver_integrate_post(const solver_settings *s, int n, double *x, double t0,
     if (s->method == SOLVER_RK4) return rk4(s, n, x, t0, t1, rhs, post, ctx, work, stats, msg, msg_len);
     solver_structure sp = {0, 0, 0, 0, 0, NULL};
     if (structure) sp = *structure;
-    if (s->method == SOLVER_MOREAU) return own_steps(s, n, x, t0, t1, sp.own_step, ctx, stats, msg, msg_len);
+    if (s->method == SOLVER_MOREAU) return own_steps(s, n, x, t0, t1, sp.own_step, ctx, work, stats, msg, msg_len);
     if (sp.quad_tail < 0 || sp.quad_tail >= n) sp.quad_tail = 0;   /* not a tail x can have: none */
     /* rows premultiplied by M cannot be read without the structure they belong to */
     if (sp.mass_rows && (sp.n2 <= 0 || 2 * sp.n2 > n)) {
