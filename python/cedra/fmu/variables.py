@@ -163,7 +163,7 @@ def _plant_rows(spec: ModelSpec, add) -> None:
         "fmi2SetupExperiment tolerance replaces the default unless this parameter is set", type="Real",
         kind="solver", index=1, min=0.0, min_exclusive=True)
     add(name="solver.h_max", causality="parameter", variability="fixed", initial="exact", start=sd["h_max"],
-        unit="s", description="largest step of the solvers, RK4's fixed step (> 0)", type="Real",
+        unit="s", description="largest step of the solvers, RK4's and MOREAU's fixed step (> 0)", type="Real",
         kind="solver", index=2, min=0.0, min_exclusive=True)
     add(name="solver.max_steps", causality="parameter", variability="fixed", initial="exact",
         start=sd["max_steps"], unit=None, description="budget of one fmi2DoStep: attempted steps (accepted and "
