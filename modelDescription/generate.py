@@ -36,7 +36,7 @@ LOG_CATEGORIES = [
 # C files shipped in sources/ (the model's generated file last)
 # the C files of each kind of block's FMU (sources/ and the build): the generic glue, the block, what it uses
 SOURCE_FILES = {
-    "plant": ["fmi2_glue.c", "plant.c", "model_glue.c", "solver.c", "linalg.c", "rigid.c", "heightmap.c",
+    "plant": ["fmi2_glue.c", "plant.c", "model_glue.c", "solver.c", "linalg.c", "rigid.c", "heightmap.c", "rim.c",
               "cedra_model.c"],
     "controller": ["fmi2_glue.c", "controller.c", "cedra_model.c"],
 }

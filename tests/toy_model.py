@@ -11,6 +11,8 @@ from __future__ import annotations
 import casadi as ca
 
 from cedra.contract import ModelSpec, Quantity
+from cedra.mechanics.contact import terrain_functions
+from cedra.mechanics.terrain import Terrain
 
 
 def toy_spec(name: str = "toy") -> ModelSpec:
@@ -75,6 +77,7 @@ def toy_spec(name: str = "toy") -> ModelSpec:
     fns["cedra_settle"] = ca.Function("cedra_settle", [q, inp, par], [res, ca.jacobian(res, z)])
     fns["cedra_guess"] = ca.Function("cedra_guess", [q, inp, par], [ca.vertcat(x, -0.5 * m * g / k)])
     fns["cedra_check"] = ca.Function("cedra_check", [q, u, inp, par], [ca.if_else(ca.fabs(x) < xmax, 1, 0)])
+    fns |= terrain_functions(Terrain("flat", {}))       # the contract's; the toy's own ground is in its forces
     spec = ModelSpec(
         name=name, description="toy: a point mass on a compliant ground with regularized Coulomb friction",
         q_names=["x", "z"], z_names=["work"], params=params, inputs=inputs, outputs=[o for o, _ in outs],

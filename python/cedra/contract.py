@@ -29,6 +29,12 @@ matrices column-major):
                   then Newton on cedra_settle).
     cedra_check  (q, u, inp, par)       -> (ok[1])  1 where the state is inside the model's domain; otherwise a
                   code <= 0 that names the reason (CHECK_REASONS below); the glue refuses such states with it.
+    cedra_terrain (xy[2], tin[8])       -> (h[1], gradient[2], Hessian[2 x 2])
+                  the scene's terrain at (X, Y) with its inputs tin (the scene's terrain inputs in their order,
+                  padded with zeros to TERRAIN_TIN); the hand-written contact search (fmu_src/rim.c) calls it.
+    cedra_rim_samples (x[7 + TERRAIN_TIN]) -> (g[13], frame[6], d1[2])
+                  the contact search's start for a wheel x = [center, axle, radius, tin]: g at the rim's 13 samples,
+                  the rim's frame (r1, r2) and g' at both ends of the lower half rim (fmu_src/rim.c).
 
 Rigid contact (contact == "rigid", the paper's decision tree) adds one function; cedra_f then holds every force
 except the contact forces, and the glue solves for accelerations and contact forces together:
@@ -74,7 +80,9 @@ CHECK_REASONS = {
     -2: "the body has tipped over (|pitch| or |roll| > 80 deg): the model has no body-ground contact",
 }
 
-FUNCTION_NAMES = ("cedra_M", "cedra_f", "cedra_rjac", "cedra_out", "cedra_settle", "cedra_guess", "cedra_check")
+FUNCTION_NAMES = ("cedra_M", "cedra_f", "cedra_rjac", "cedra_out", "cedra_settle", "cedra_guess", "cedra_check",
+                  "cedra_terrain", "cedra_rim_samples")
+TERRAIN_TIN = 8         # cedra_terrain's input vector (fmu_src/rim.c: the search's x = [c, a, R, tin])
 CONTROLLER_FUNCTION_NAMES = ("cedra_sample",)
 
 
@@ -147,6 +155,8 @@ class ModelSpec:
             "cedra_settle": ([nq, ni, npar], [(ns, 1), (ns, ns)]),
             "cedra_guess": ([nq, ni, npar], [(nq, 1)]),
             "cedra_check": ([nq, nq, ni, npar], [(1, 1)]),
+            "cedra_terrain": ([2, TERRAIN_TIN], [(1, 1), (2, 1), (2, 2)]),
+            "cedra_rim_samples": ([7 + TERRAIN_TIN], [(13, 1), (6, 1), (2, 1)]),
         }
         if self.contact == "rigid":
             nc = self.n_contacts

@@ -7,7 +7,7 @@ from typing import Callable
 import casadi as ca
 
 from cedra.mechanics import heightmap
-from cedra.contract import Quantity
+from cedra.contract import TERRAIN_TIN, Quantity
 
 TERRAIN_INPUTS = {
     "terrain_h": Quantity("terrain_h", 0.14625, "m", "terrain feature height (bump, step, waves)"),
@@ -18,7 +18,10 @@ TERRAIN_INPUTS = {
     "terrain_slope": Quantity("terrain_slope", 0.0, "rad",
                               "slope angle about Y (positive: the ground descends toward +X)", min=-1.2, max=1.2),
     "terrain_s": Quantity("terrain_s", 0.02, "m", "step smoothing length", min=1e-6),
+    "terrain_yaw": Quantity("terrain_yaw", 0.0, "rad", "stairs turned about Z through (terrain_x0, terrain_y0): "
+                            "the edges' normal makes this angle with X", min=-1.5, max=1.5),
 }
+STAIRS_STEPS = 4        # the stairs' default number of steps (a scene's stairs_steps)
 
 
 @dataclass(frozen=True)
@@ -27,6 +30,14 @@ class TerrainKind:
     inputs: tuple[str, ...]
     height: Callable       # (X, Y, t: dict name -> SX) -> SX
     planar: bool           # a plane: the rim search's start point (beta = 0) is already exact
+
+
+def terrain_inputs(kind: str, dims: str) -> tuple[str, ...]:
+    """The inputs of a terrain kind in a scene of dims: 2D stairs are not turned (no terrain_y0, terrain_yaw)."""
+    names = KINDS[kind].inputs
+    if kind == "stairs" and dims == "2d":
+        names = tuple(n for n in names if n not in ("terrain_y0", "terrain_yaw"))
+    return names
 
 
 def _bump(X, Y, t):
@@ -42,6 +53,15 @@ def _step(X, Y, t):
     return 0.5 * t["terrain_h"] * (1 + ca.tanh((X - t["terrain_x0"]) / t["terrain_s"]))
 
 
+def _stairs(X, Y, t, steps=STAIRS_STEPS):
+    """steps smoothed steps of rise terrain_h and run terrain_w, the first edge at terrain_x0; in 3D turned about
+    Z through (terrain_x0, terrain_y0) by terrain_yaw (absent in 2D: 0)."""
+    yaw = t.get("terrain_yaw", 0)
+    x0, y0 = t["terrain_x0"], t.get("terrain_y0", 0)
+    u = (X - x0) * ca.cos(yaw) + (Y - y0) * ca.sin(yaw)          # distance past the first edge, across the edges
+    return sum(0.5 * t["terrain_h"] * (1 + ca.tanh((u - j * t["terrain_w"]) / t["terrain_s"])) for j in range(steps))
+
+
 def _waves(X, Y, t):
     k = 2 * ca.pi / t["terrain_w"]
     return t["terrain_h"] * ca.sin(k * X) * ca.sin(k * Y)
@@ -54,6 +74,9 @@ KINDS = {
     "bump3d": TerrainKind("bump3d", ("terrain_h", "terrain_w", "terrain_x0", "terrain_y0"), _bump3d, False),
     "step": TerrainKind("step", ("terrain_h", "terrain_x0", "terrain_s"), _step, False),
     "waves": TerrainKind("waves", ("terrain_h", "terrain_w"), _waves, False),
+    # in 2D without terrain_y0, terrain_yaw (terrain_inputs); the number of steps is the scene's (Terrain's steps)
+    "stairs": TerrainKind("stairs", ("terrain_h", "terrain_w", "terrain_x0", "terrain_s", "terrain_y0", "terrain_yaw"),
+                          _stairs, False),
     # a grid shipped in the FMU's resources (cedra.mechanics.heightmap): the height is an external function, no inputs
     "heightmap": TerrainKind("heightmap", (), None, False),
 }
@@ -75,7 +98,8 @@ class Terrain:
     pose enters the derivatives exactly (implicit function theorem in C) instead of through the symbolic
     derivatives of 13 samples and 4 Newton steps."""
 
-    def __init__(self, kind: str, inputs: dict[str, ca.SX], heightmap_file: str = "", symbolic_rim: bool = False):
+    def __init__(self, kind: str, inputs: dict[str, ca.SX], heightmap_file: str = "", symbolic_rim: bool = False,
+                 steps: int = STAIRS_STEPS):
         """heightmap_file: the grid of kind "heightmap"; it is loaded as the process's active map.
         symbolic_rim: kind "heightmap" with the rim search formed symbolically (contact.rim_point through the
         point external cedra_heightmap), as before the C search: the reference the tests compare against."""
@@ -84,14 +108,14 @@ class Terrain:
         self.external_rim = kind == "heightmap" and not symbolic_rim
         self._frozen = []           # (x0, e0, J0, x) per rim_contact call
         X, Y = ca.SX.sym("X"), ca.SX.sym("Y")
-        t = [inputs[n] for n in self.kind.inputs]
+        t = [inputs[n] for n in self.kind.inputs if n in inputs]
         if kind == "heightmap":
             if not heightmap_file:
                 raise ValueError("terrain 'heightmap' needs its heightmap file")
             heightmap.load(heightmap_file)
             h, grad, hess = heightmap.external()(ca.vertcat(X, Y))
         else:
-            h = self.kind.height(X, Y, inputs)
+            h = _stairs(X, Y, inputs, steps) if kind == "stairs" else self.kind.height(X, Y, inputs)
             grad = ca.gradient(h, ca.vertcat(X, Y))
             hess = ca.jacobian(grad, ca.vertcat(X, Y))
         self._f = ca.Function("terrain", [X, Y] + t, [h, grad, hess])
@@ -107,6 +131,33 @@ class Terrain:
 
     def height(self, X, Y):
         return self.local(X, Y)[0]
+
+    @property
+    def n_inputs(self) -> int:
+        return len(self._t)
+
+    @property
+    def input_names(self) -> list[str]:
+        """The names of the terrain's inputs in their order (tin's order)."""
+        return [n for n in self.kind.inputs if n in self.inputs]
+
+    def bound(self, inputs: dict[str, ca.SX]) -> "Terrain":
+        """This terrain with other symbols for its inputs (the same kind, steps and grid)."""
+        other = object.__new__(Terrain)
+        other.__dict__.update(self.__dict__)
+        other.inputs = inputs
+        other._t = [inputs[n] for n in self.input_names]
+        return other
+
+    def function(self) -> ca.Function:
+        """cedra_terrain: (xy[2], tin[TERRAIN_TIN]) -> (h, gradient, Hessian), the terrain for C (the contract)."""
+        xy, tin = ca.SX.sym("xy", 2), ca.SX.sym("tin", TERRAIN_TIN)
+        h, g, H = self._f(xy[0], xy[1], *[tin[k] for k in range(self.n_inputs)])
+        return ca.Function("cedra_terrain", [xy, tin], [h, g, H], ["xy", "tin"], ["h", "grad", "hess"])
+
+    def tin(self):
+        """The terrain's inputs as cedra_terrain's tin (padded with zeros)."""
+        return ca.vertcat(*self._t, ca.SX.zeros(TERRAIN_TIN - self.n_inputs))
 
     def normal(self, X, Y):
         g = self.local(X, Y)[1]

@@ -15,11 +15,13 @@ import casadi as ca
 import numpy as np
 
 from cedra.rover import parameters
-from cedra.mechanics.contact import compliant_force, contact_geometry, rim_samples
+from cedra.mechanics.contact import (ContactGeometry, compliant_force, contact_frame, contact_geometry,
+                                     rim_contacts, slope_angle, terrain_functions)
+from cedra.mechanics import rim
 from cedra.mechanics.kane import KaneSystem
 from cedra.rover.mechanism import FULL_Q, IDX, describe, drive_torque
 from cedra.contract import ModelSpec, Quantity
-from cedra.mechanics.terrain import KINDS, TERRAIN_INPUTS, Terrain
+from cedra.mechanics.terrain import STAIRS_STEPS, TERRAIN_INPUTS, Terrain, terrain_inputs
 
 PLANAR_MAP = {"y": None, "yaw": None, "roll": None, "theta2": "theta1", "theta3": None, "theta6": None,
               "gamma3": "gamma1", "gamma4": "gamma2"}
@@ -37,6 +39,7 @@ class ModelOptions:
     locked_wheels: bool = False   # wheels welded to their carriers (a parking brake): no spin coordinates
     heightmap: str = ""           # terrain "heightmap": the grid file (shipped as the FMU's resources/heightmap.txt)
     drives: bool = False          # motor-and-gear model between tau[i] and the wheel (spec section 11)
+    stairs_steps: int = STAIRS_STEPS   # terrain "stairs": its number of steps
 
 
 def coordinate_map(opt: ModelOptions) -> dict[str, str | None]:
@@ -80,8 +83,15 @@ def input_table(opt: ModelOptions) -> list[Quantity]:
         ins += [Quantity("steer[1]", 0.0, "rad", "commanded steering angle of wheel 5 (theta3)", -1.5, 1.5),
                 Quantity("steer[2]", 0.0, "rad", "commanded steering angle of wheel 6 (theta6)", -1.5, 1.5)]
     ins.append(Quantity("mu", 0.8, "1", "friction coefficient wheel-ground", 0.0, 10.0))
-    ins += [TERRAIN_INPUTS[n] for n in KINDS[opt.terrain].inputs]
+    ins += [TERRAIN_INPUTS[n] for n in terrain_inputs(opt.terrain, opt.dims)]
     return ins
+
+
+def _function(name, ins, outs) -> ca.Function:
+    """A contract function with common subexpressions eliminated: the same terrain point, frame or contact
+    quantity formed twice (the contacts of a wheel share their frame, a 2D bogie pair its search) is computed
+    once; bit for bit the same results, about half the instructions."""
+    return ca.Function(name, ins, outs, {"cse": True})
 
 
 def _out(name, unit, description, type="Real"):
@@ -115,31 +125,16 @@ class CedraModel:
         self.tau = self.applied_torques([i_.get(f"tau[{k}]", 0) for k in range(1, 7)])
         steer = (i_["steer[1]"], i_["steer[2]"]) if opt.steering else None
         self.rover = describe(self.qf, self.rate, p, self.tau, steer)
-        self.terrain = Terrain(opt.terrain, {n: i_[n] for n in KINDS[opt.terrain].inputs}, opt.heightmap,
-                               symbolic_rim)
+        self.terrain = Terrain(opt.terrain, {n: i_[n] for n in terrain_inputs(opt.terrain, opt.dims)},
+                               opt.heightmap, symbolic_rim, opt.stairs_steps)
         self.kane = KaneSystem(self.q, self.u, list(self.rover.bodies))
         self.kane.add_generalized_force(ca.jacobian(self.rate(self.qf), self.u).T @ self.rover.coordinate_torques)
         for b in self.rover.bodies:                                  # gravity: -m g Z at each mass center
             self.kane.add_point_force(self.rate(b.position), ca.vertcat(0, 0, -b.mass * p["g"]))
-        self.contacts = []
-        for wh in self.rover.wheels:
-            geo = contact_geometry(wh.center, wh.axle, self.terrain, p["R_w"])
-            # velocity of the wheel's material point at a free point, then the contact point put in: the partial
-            # velocities never differentiate through the contact search (the heightmap terrain's derivative
-            # chain is finite, see terrain.Terrain)
-            at = ca.SX.sym("p_contact", 3)
-            v_at = wh.velocity + ca.cross(wh.omega, at - wh.center)
-            v_point = ca.substitute(v_at, at, geo.point)
-            vc = geo.frame.T @ v_point                      # contact-frame components (x, y, n)
-            if self.rigid:   # forces come from the glue's constrained solve; 0 placeholders in the outputs
-                self.contacts.append(dict(geo=geo, Fn=0, Fx=0, Fy=0, slip=ca.norm_2(vc[0:2]), flag=geo.depth >= 0,
-                                          v_point=v_point, vc=vc))
-                continue
-            force, Fn, Fx, Fy, slip, flag = compliant_force(geo, v_point, p["ground_k"], p["ground_d"], i_["mu"],
-                                                            p["v_eps"])
-            self.kane.add_point_force(v_point, force, ca.substitute(ca.jacobian(v_at, self.u), at, geo.point))
-            self.contacts.append(dict(geo=geo, Fn=Fn, Fx=Fx, Fy=Fy, slip=slip, flag=flag, force=force,
-                                      v_point=v_point, vc=vc, v_n=ca.dot(v_point, geo.normal), wheel=wh))
+        self._frozen = []           # (symbol, expression) of the contact search (_freeze)
+        self._searches = {}         # wheel index -> its contact search (cedra_rim_search's result)
+        self._rim_search = None
+        self.contacts = [self._wheel_contact(wh) for wh in self.rover.wheels]
         self.M, self.f = self.kane.equations()
         qd = self.rate(self.qf)
         # the work integral is the APPLIED torques' (with drives: after the clip and the gear loss), so
@@ -148,11 +143,95 @@ class CedraModel:
         self.kinetic = 0.5 * ca.dot(self.u, self.M @ self.u)
         self.potential = self.rover.potential
         if not self.rigid:
-            self.potential += sum(ca.if_else(c["flag"], 0.5 * p["ground_k"] * c["geo"].depth ** 2, 0)
-                                  for c in self.contacts)
+            self.potential += sum(ca.if_else(part["geo"].depth > 0, 0.5 * p["ground_k"] * part["geo"].depth ** 2, 0)
+                                  for c in self.contacts for part in c["parts"])
+
+    def _freeze(self, expr):
+        """A free symbol standing for expr until resolve() (see contact.rim_contacts: derivatives do not go
+        through the contact search)."""
+        sym = ca.SX.sym(f"frozen{len(self._frozen)}", expr.shape[0], expr.shape[1])
+        self._frozen.append((sym, expr))
+        return sym
+
+    def resolve(self, exprs: list, derivatives: bool = True) -> list:
+        """exprs with the contact search's frozen symbols put back, then the heightmap's (terrain.resolve)."""
+        if self._frozen:
+            exprs = ca.substitute(list(exprs), [s for s, _ in self._frozen], [e for _, e in self._frozen])
+        return self.terrain.resolve(exprs, derivatives)
 
     def rate(self, expr):
         return ca.jtimes(expr, self.q, self.u)
+
+    @property
+    def multi_contact(self) -> bool:
+        """Several contacts per wheel (spec section 6a): compliant contact on a curved analytic terrain. Planar
+        terrain has one contact exactly; the heightmap's C search and rigid contact keep one (the deepest)."""
+        return not self.rigid and not self.terrain.planar and self.opt.terrain != "heightmap"
+
+    def _wheel_contact(self, wh) -> dict:
+        """A wheel's contacts, their forces added to Kane's equations, and the wheel's totals in the per-wheel
+        outputs' meaning (spec section 6a item 4): the total force along the frame of n_eff = unit(sum F_n,k n_k)
+        (the deepest contact's normal while the wheel carries no force), the point the normal-force-weighted mean
+        of the contact points (the deepest point while no force)."""
+        p, i_ = self.p, self.i
+        # velocity of the wheel's material point at a free point, then the contact point put in: the partial
+        # velocities never differentiate through the contact search (the heightmap terrain's derivative chain is
+        # finite, see terrain.Terrain)
+        at = ca.SX.sym("p_contact", 3)
+        v_at = wh.velocity + ca.cross(wh.omega, at - wh.center)
+        if self.multi_contact:
+            # 2D: the terrain is constant in Y and a bogie pair's wheels differ only in y, so wheels 3 and 4
+            # meet it exactly as wheels 1 and 2 do: one search for the pair
+            search = self._searches.get({3: 1, 4: 2}.get(wh.index)) if self.opt.dims == "2d" else None
+            if search is None:
+                if self._rim_search is None:
+                    self._rim_search = rim.search_external(self.terrain)
+                search = self._rim_search(rim.search_input(wh.center, wh.axle, p["R_w"], self.terrain))
+            self._searches[wh.index] = search
+            geos, present = rim_contacts(wh.center, wh.axle, self.terrain, p["R_w"], search, self._freeze)
+        else:
+            geos, present = [contact_geometry(wh.center, wh.axle, self.terrain, p["R_w"])], [1]
+        parts = []
+        for geo, pres in zip(geos, present):
+            v_point = ca.substitute(v_at, at, geo.point)
+            vc = geo.frame.T @ v_point                      # contact-frame components (x, y, n)
+            part = dict(geo=geo, present=pres, v_point=v_point, vc=vc, v_n=ca.dot(v_point, geo.normal))
+            if not self.rigid:
+                force, Fn, Fx, Fy, slip, _ = compliant_force(geo, v_point, p["ground_k"], p["ground_d"], i_["mu"],
+                                                           p["v_eps"])
+                self.kane.add_point_force(v_point, force, ca.substitute(ca.jacobian(v_at, self.u), at, geo.point))
+                part |= dict(force=force, Fn=Fn, Fx=Fx, Fy=Fy, slip=slip)
+            parts.append(part)
+        if len(parts) == 1:
+            c = parts[0]
+            geo = c["geo"]
+            if self.rigid:   # forces come from the glue's constrained solve; 0 placeholders in the outputs
+                return dict(geo=geo, Fn=0, Fx=0, Fy=0, slip=ca.norm_2(c["vc"][0:2]), flag=geo.depth >= 0,
+                            v_point=c["v_point"], vc=c["vc"], parts=parts, wheel=wh)
+            return dict(geo=geo, Fn=c["Fn"], Fx=c["Fx"], Fy=c["Fy"], slip=c["slip"], flag=geo.depth > 0,
+                        force=c["force"], v_n=c["v_n"], parts=parts, wheel=wh)
+        depths = [c["geo"].depth for c in parts]
+        deepest = [1] + [0] * (len(parts) - 1)          # one-hot of the deepest contact (the first on ties)
+        for k in range(1, len(parts)):
+            deeper = depths[k] > ca.mmax(ca.vertcat(*depths[:k]))
+            deepest = [ca.if_else(deeper, int(j == k), d) for j, d in enumerate(deepest)]
+
+        def pick(vals):
+            return sum(d * v for d, v in zip(deepest, vals))
+        fn_sum = sum(c["Fn"] for c in parts)
+        carried = fn_sum > 0
+        fn_vec = sum(c["Fn"] * c["geo"].normal for c in parts)
+        n_eff = ca.if_else(carried, fn_vec / ca.if_else(carried, ca.norm_2(fn_vec), 1),
+                           pick([c["geo"].normal for c in parts]))
+        weight = [ca.if_else(carried, c["Fn"] / ca.if_else(carried, fn_sum, 1), d) for c, d in zip(parts, deepest)]
+        point = sum(w * c["geo"].point for w, c in zip(weight, parts))
+        frame = contact_frame(wh.axle, n_eff)
+        depth = ca.mmax(ca.vertcat(*depths))
+        geo = ContactGeometry(point, n_eff, frame, depth, slope_angle(wh.axle, n_eff))
+        force = sum(c["force"] for c in parts)
+        return dict(geo=geo, Fn=ca.dot(force, n_eff), Fx=ca.dot(force, frame[:, 0]), Fy=ca.dot(force, frame[:, 1]),
+                    slip=sum(w * c["slip"] for w, c in zip(weight, parts)), flag=depth > 0, force=force,
+                    parts=parts, wheel=wh)
 
     def applied_torques(self, tau_cmd):
         """The torques on the six wheels: the commands themselves, or (drives) each command through its wheel's
@@ -213,6 +292,10 @@ class CedraModel:
                   else f"wheel {k} contact mode: 0 airborne, 2 in contact", "Integer"),
                  ca.if_else(c["flag"], 2, 0)),
             ]
+            o.append((_out(f"wheel[{k}].contacts", "1", f"wheel {k} contacts touching the terrain (delta_k > 0)",
+                           "Integer"), sum(ca.if_else(c2["geo"].depth > 0, 1, 0) for c2 in c["parts"])))
+            if len(c["parts"]) > 1:
+                o += self._contact_outputs(k, c["parts"])
             for j, axis in enumerate("xyz"):
                 o.append((_out(f"wheel[{k}].c{axis}", "m", f"wheel {k} center, world {axis.upper()}"), wh.center[j]))
             for j, axis in enumerate("xyz"):
@@ -231,6 +314,21 @@ class CedraModel:
                     o.append((_out(f"wheel[{k}].{comp}_mean", "N",
                                    f"wheel {k} {what} contact force averaged over the last communication step "
                                    "(impulse / step, impacts included; at the start: the force there)"), 0))
+        return o
+
+    def _contact_outputs(self, k, parts):
+        """Per contact j = 1..3 of wheel k, ordered by beta (spec section 6a item 4): its normal force, slope and
+        point; 0 where the slot holds no maximum of g."""
+        o = []
+        for j, c in enumerate(parts, start=1):
+            pres, geo = c["present"], c["geo"]
+            o += [(_out(f"wheel[{k}].contact[{j}].Fn", "N", f"wheel {k} contact {j}: normal force"), c["Fn"]),
+                  (_out(f"wheel[{k}].contact[{j}].psi", "rad", f"wheel {k} contact {j}: slope angle"),
+                   ca.if_else(pres, geo.slope, 0)),
+                  (_out(f"wheel[{k}].contact[{j}].px", "m", f"wheel {k} contact {j}: point, world X"),
+                   ca.if_else(pres, geo.point[0], 0)),
+                  (_out(f"wheel[{k}].contact[{j}].pz", "m", f"wheel {k} contact {j}: point, world Z"),
+                   ca.if_else(pres, geo.point[2], 0))]
         return o
 
     def _kinematic_outputs(self, wh, geo):
@@ -264,11 +362,9 @@ class CedraModel:
           max(-k (a - hi) - d rate, k (hi - a)) above, min(-k (a - lo) - d rate, k (lo - a)) below, which again
           carry the clip's sign only beyond their stop;
         - drives (spec section 11): the command against both edges of the motor envelope;
-        - the best rim sample (non-planar terrain): the rim search starts Newton from the best of 13 samples,
-          so the contact point jumps when a sample that is not a neighbour of the best one overtakes it. The
-          best index is HELD over a step (argument `hold`, the glue evaluates `hold_now` at the step's start):
-          s = g(held best) - max of g over the samples at least two apart from it. Neighbours swapping is not a
-          switch: Newton from either converges to the same maximum.
+        - several contacts per wheel (spec section 6a): the contact switch is the wheel's deepest penetration, and
+          each contact has its own clip. The contact search makes discrete choices (which samples start Newton),
+          but the shared penetration keeps each wheel's force continuous through them: no switch there.
         Rigid scenes have none: their decision tree holds its modes over a step and locates touch-downs itself."""
         if self.rigid:
             return [], [], [], []
@@ -276,9 +372,14 @@ class CedraModel:
         s, names, hold, hold_now = [], [], [], []
         for c in self.contacts:
             k = c["wheel"].index
-            d = c["geo"].depth
-            s += [d, ca.fmin(p["ground_k"] * d - p["ground_d"] * c["v_n"], p["ground_k"] * d)]
-            names += [f"wheel[{k}] contact", f"wheel[{k}] normal-force clip"]
+            s.append(c["geo"].depth)                        # the wheel's deepest contact
+            names.append(f"wheel[{k}] contact")
+            several = len(c["parts"]) > 1
+            for j, part in enumerate(c["parts"], start=1):
+                d = part["geo"].depth
+                s.append(ca.fmin(p["ground_k"] * d - p["ground_d"] * part["v_n"], p["ground_k"] * d))
+                names.append(f"wheel[{k}] contact[{j}] normal-force clip" if several
+                             else f"wheel[{k}] normal-force clip")
         stops = [("theta1", -p["bogie_stop"], p["bogie_stop"]), ("theta2", -p["bogie_stop"], p["bogie_stop"]),
                  ("theta4", p["fork_stop_lo"], p["fork_stop_hi"])]
         for name, lo, hi in stops:
@@ -296,26 +397,6 @@ class CedraModel:
                 T, w0 = p["drive_stall_torque"], p["drive_noload_speed"]
                 s += [T * (1 - w / w0) - cmd, cmd + T * (1 + w / w0)]
                 names += [f"wheel[{k + 1}] drive upper edge", f"wheel[{k + 1}] drive lower edge"]
-        # the heightmap's rim search is its own C function (mechanics/heightmap.py): its choices are not these
-        # 13 samples, so no rim switch there
-        if not self.terrain.planar and self.opt.terrain != "heightmap":
-            for c in self.contacts:
-                wh = c["wheel"]
-                g = rim_samples(wh.center, wh.axle, self.terrain, p["R_w"])
-                ks = list(range(-6, 7))
-                best_k, best_g = 0, g[ks.index(0)]            # the rim search's order: k = 0 first, strict >
-                for k in ks:
-                    if k == 0:
-                        continue
-                    better = g[ks.index(k)] > best_g
-                    best_k, best_g = ca.if_else(better, k, best_k), ca.if_else(better, g[ks.index(k)], best_g)
-                h = ca.SX.sym(f"hold{wh.index}")
-                g_held = sum(ca.if_else(h == k, g[j], 0) for j, k in enumerate(ks))
-                far = [ca.if_else(ca.fabs(h - k) >= 2, g[j], -1e3) for j, k in enumerate(ks)]
-                s.append(g_held - ca.mmax(ca.vertcat(*far)))
-                names.append(f"wheel[{wh.index}] best rim sample")
-                hold.append(h)
-                hold_now.append(best_k)
         return s, hold, hold_now, names
 
     def functions(self) -> dict[str, ca.Function]:
@@ -338,28 +419,28 @@ class CedraModel:
             res = ca.substitute(self.f, u, ca.DM.zeros(n))[sidx]
         jac = ca.jacobian(res, q)[:, sidx]
         fns = {}
-        res_ = self.terrain.resolve      # a heightmap's contact points (terrain.Terrain.resolve; others: as is)
+        res_ = self.resolve      # the contact search's frozen symbols, a heightmap's contact points
         if self.rigid:
             vc = ca.vertcat(*[c["vc"] for c in self.contacts])
             W = ca.jacobian(vc, u)
-            fns["cedra_contact"] = ca.Function("cedra_contact", [q, u, inp, par], res_(
+            fns["cedra_contact"] = _function("cedra_contact", [q, u, inp, par], res_(
                 [W, ca.jtimes(vc, q, u), vc, ca.vertcat(*[-c["geo"].depth for c in self.contacts])]))
         sw, hold, hold_now, _ = self.switches
         if sw:
             hv = ca.vertcat(*hold) if hold else ca.SX(0, 1)
-            fns["cedra_switch"] = ca.Function("cedra_switch", [q, u, inp, par, hv], res_(
+            fns["cedra_switch"] = _function("cedra_switch", [q, u, inp, par, hv], res_(
                 [ca.vertcat(*sw), ca.vertcat(*hold_now) if hold else ca.SX(0, 1)], derivatives=False))
         return fns | {
-            "cedra_M": ca.Function("cedra_M", [q, par], [self.M]),
-            "cedra_f": ca.Function("cedra_f", [q, u, inp, par], res_([self.f, self.power], derivatives=False)),
-            "cedra_rjac": ca.Function("cedra_rjac", [q, u, a, inp, par],
+            "cedra_M": _function("cedra_M", [q, par], [self.M]),
+            "cedra_f": _function("cedra_f", [q, u, inp, par], res_([self.f, self.power], derivatives=False)),
+            "cedra_rjac": _function("cedra_rjac", [q, u, a, inp, par],
                                       res_([ca.jacobian(r, q), ca.jacobian(r, u),
                                             ca.jacobian(self.power, q), ca.jacobian(self.power, u)])),
-            "cedra_out": ca.Function("cedra_out", [q, u, z, inp, par], res_([y])),
-            "cedra_settle": ca.Function("cedra_settle", [q, inp, par], res_([res, jac])),
-            "cedra_guess": ca.Function("cedra_guess", [q, inp, par], [self.guess()]),
-            "cedra_check": ca.Function("cedra_check", [q, u, inp, par], [self.check()]),
-        }
+            "cedra_out": _function("cedra_out", [q, u, z, inp, par], res_([y])),
+            "cedra_settle": _function("cedra_settle", [q, inp, par], res_([res, jac])),
+            "cedra_guess": _function("cedra_guess", [q, inp, par], [self.guess()]),
+            "cedra_check": _function("cedra_check", [q, u, inp, par], [self.check()]),
+        } | terrain_functions(self.terrain)
 
     def work_description(self):
         if not self.opt.drives:
@@ -396,7 +477,7 @@ class CedraModel:
             return level
         # on curved ground some wheels of the level pose hang in the air, where the equilibrium Jacobian has no
         # stiffness (singular): lower the pose until the highest wheel is 1 mm into the ground too
-        depths = self.terrain.resolve([ca.vertcat(*[c["geo"].depth for c in self.contacts])], derivatives=False)[0]
+        depths = self.resolve([ca.vertcat(*[c["geo"].depth for c in self.contacts])], derivatives=False)[0]
         depths = ca.substitute(depths, q, level)
         lower = ca.fmax(0, 1e-3 - ca.mmin(depths))
         return ca.vertcat(*[level[k] - lower if nm == "z" else level[k] for k, nm in enumerate(names)])

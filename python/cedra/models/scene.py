@@ -4,7 +4,8 @@ before any code is generated.
     name = "bump2d"                 # FMU model identifier: letters, digits, underscore
     description = "..."
     dims = "2d"                     # "2d" (planar, 9 DOF) or "3d" (17 DOF, 15 without steering)
-    terrain = "bump"                # flat | slope | bump | bump3d | step | waves | heightmap
+    terrain = "bump"                # flat | slope | bump | bump3d | step | stairs | waves | heightmap
+    stairs_steps = 4                # terrain "stairs" only: its number of steps (1..50)
     heightmap = "hills.txt"         # terrain "heightmap" only: the grid file (format: fmu_src/heightmap.h), relative
                                     # to the scene file; shipped in the FMU as resources/heightmap.txt
     contact = "compliant"           # compliant (rigid: not built yet)
@@ -35,10 +36,10 @@ from pathlib import Path
 from cedra.mechanics import heightmap
 from cedra.models.plant import CedraModel, ModelOptions, input_table, param_table, projection
 from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, SOLVER_METHODS, ModelSpec
-from cedra.mechanics.terrain import KINDS
+from cedra.mechanics.terrain import KINDS, STAIRS_STEPS
 
 SOLVERS = {name: k for k, name in enumerate(SOLVER_METHODS)}
-TOP_KEYS = {"name", "description", "dims", "terrain", "heightmap", "contact", "steering", "locked_wheels",
+TOP_KEYS = {"name", "description", "dims", "terrain", "heightmap", "stairs_steps", "contact", "steering", "locked_wheels",
             "drives", "stop_time", "output_interval",
             "solver", "parameters", "inputs", "start"}
 
@@ -144,6 +145,11 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     if dims == "2d" and terrain in ("bump3d", "waves", "heightmap"):
         _fail(path, "terrain", f"'{terrain}' varies along Y and needs dims = '3d'")
     heightmap_file = _heightmap_file(path, data, terrain)
+    steps = data.get("stairs_steps", STAIRS_STEPS)
+    if "stairs_steps" in data and terrain != "stairs":
+        _fail(path, "stairs_steps", f"only for terrain = 'stairs' (this scene's terrain is '{terrain}')")
+    if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 50:
+        _fail(path, "stairs_steps", f"expected an integer in 1..50, got {steps!r}")
     contact = _choice(path, "contact", data.get("contact", "compliant"), {"compliant", "rigid"})
     steering = data.get("steering", False)
     if not isinstance(steering, bool):
@@ -188,7 +194,7 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     if solver["method"] == "moreau" and contact != "rigid":
         _fail(path, "solver.method", "moreau is the rigid contact's own time stepping (contact = \"rigid\")")
     opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked,
-                       heightmap=heightmap_file, drives=drives)
+                       heightmap=heightmap_file, drives=drives, stairs_steps=steps)
     scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path))
     for section, table in (("parameters", param_table(opt)), ("inputs", input_table(opt))):
         known = {q.name: q for q in table}
@@ -200,6 +206,8 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
                       f"(dims={dims}, terrain={terrain}, steering={steering}, drives={drives})")
             q = known[key]
             values[key] = _number(path, f"{section}.{key}", value, q.min, q.max, lo_exclusive=q.min_exclusive)
+            if terrain == "stairs" and key == "terrain_h" and values[key] < 0:
+                _fail(path, f"{section}.{key}", f"the stairs' rise must be >= 0, got {values[key]}")
         setattr(scene, section, values)
     names, _ = projection(opt)
     for key, value in _table(path, data, "start").items():

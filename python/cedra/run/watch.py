@@ -69,7 +69,7 @@ class TerrainMap:
 
     def __init__(self, fmu_path, values: dict | None = None):
         from fmpy import read_model_description
-        from cedra.mechanics.terrain import KINDS, Terrain
+        from cedra.mechanics.terrain import KINDS, Terrain, terrain_inputs
         md = read_model_description(str(fmu_path))
         names = {v.name for v in md.modelVariables if v.name.startswith("terrain_")}
         self.extent = None              # (x0, x1, y0, y1) where the terrain exists (a heightmap's grid)
@@ -83,7 +83,8 @@ class TerrainMap:
             nx, ny, x0, y0, dx, dy = _grid_header(hm)
             self.extent = (x0, x0 + (nx - 1) * dx, y0, y0 + (ny - 1) * dy)
         else:
-            kinds = [k for k, v in KINDS.items() if set(v.inputs) == names and k != "heightmap"]
+            kinds = [k for k in KINDS if k != "heightmap"
+                     and any(set(terrain_inputs(k, d)) == names for d in ("2d", "3d"))]
             if len(kinds) != 1:
                 raise ValueError(f"{fmu_path}: cannot tell the terrain kind from its inputs {sorted(names)}")
             kind = kinds[0]

@@ -1,0 +1,72 @@
+"""The contact search of a wheel on an analytic terrain, in C (fmu_src/rim.c), for the symbolic model.
+
+The FMU compiles fmu_src/rim.c with the scene's generated cedra_terrain (the contract). The symbolic model calls
+the same search as a CasADi external function, cedra_rim_search, from a small host library: the scene's
+cedra_terrain generated to C and compiled with rim.c (cached under build/host/ by a hash of both sources). One
+implementation of the search for the FMU, the Python-side model and the tests. The search makes only discrete
+choices and converged angles, so the model never differentiates it (cedra.mechanics.contact.rim_contacts)."""
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+
+import casadi as ca
+
+from cedra.mechanics.contact import rim_samples_function
+from cedra.mechanics.terrain import Terrain
+
+REPO_ROOT = Path(__file__).resolve().parents[3]
+SOURCE = REPO_ROOT / "fmu_src" / "rim.c"
+HOST_DIR = REPO_ROOT / "build" / "host"
+EXTERNAL_NAME = "cedra_rim_search"
+N_RESULT = 8            # [beta of maxima 1..3, beta of saddles 1..2, presence of maxima 1..3]
+
+
+class RimBuildError(RuntimeError):
+    pass
+
+
+def _terrain_c(terrain: Terrain) -> str:
+    with tempfile.TemporaryDirectory() as d:
+        cg = ca.CodeGenerator("cedra_terrain_host.c", {"casadi_real": "double", "casadi_int": "long long int",
+                                                       "with_header": False, "verbose": False})
+        cg.add(terrain.function())
+        cg.add(rim_samples_function(terrain))
+        cg.generate(d + "/")
+        return (Path(d) / "cedra_terrain_host.c").read_text()
+
+
+@lru_cache(maxsize=None)
+def _library(code: str) -> Path:
+    rim = SOURCE.read_bytes()
+    lib = HOST_DIR / f"libcedra_rim_{hashlib.sha256(rim + code.encode()).hexdigest()[:16]}.so"
+    if not lib.exists():
+        HOST_DIR.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory() as d:
+            src = Path(d) / "cedra_terrain_host.c"
+            src.write_text(code)
+            fd, tmp = tempfile.mkstemp(suffix=".so", dir=HOST_DIR)     # parallel test workers: build, then rename
+            os.close(fd)
+            # -Bsymbolic: rim.c calls this library's own cedra_terrain, whatever other library is loaded
+            cmd = ["gcc", "-std=c99", "-O2", "-fPIC", "-shared", "-Wl,-Bsymbolic", "-Wall", "-Wextra", "-Werror",
+                   "-Wno-unused-parameter", "-Wno-unused-variable", "-Wno-unused-function",
+                   "-Wno-unused-but-set-variable", "-Wno-sign-compare", str(SOURCE), str(src), "-o", tmp, "-lm"]
+            r = subprocess.run(cmd, capture_output=True, text=True)
+            if r.returncode != 0:
+                os.unlink(tmp)
+                raise RimBuildError(f"compiling {SOURCE} failed:\n{r.stderr}")
+            os.replace(tmp, lib)
+    return lib
+
+
+def search_external(terrain: Terrain) -> ca.Function:
+    """cedra_rim_search for this terrain: (x[15] = [center, axle, radius, terrain inputs padded]) -> (r[8])."""
+    return ca.external(EXTERNAL_NAME, str(_library(_terrain_c(terrain))))
+
+
+def search_input(center, axle, radius, terrain: Terrain):
+    return ca.vertcat(center, axle, radius, terrain.tin())
