@@ -1,4 +1,4 @@
-"""Wheel-disk contact geometry and the compliant contact law (spec section 6). No CEDRA numbers here."""
+"""Wheel-disk contact geometry and the compliant contact law (docs/model.md, Contact). No CEDRA numbers here."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -22,7 +22,7 @@ class ContactGeometry:
 
 
 def rim_point(center, axle, terrain: Terrain, radius):
-    """The rim point lying deepest below the terrain, measured vertically (spec section 6, step 1).
+    """The rim point lying deepest below the terrain, measured vertically (docs/model.md, Contact).
 
     One contact point per wheel: a wheel touching two faces at once (a step's edge and the ground) is modeled
     by the deeper one."""
@@ -97,7 +97,7 @@ def compliant_force(geo: ContactGeometry, v_point, ground_k, ground_d, mu, v_eps
 
 def rim_samples(center, axle, terrain: Terrain, radius) -> list:
     """g(beta_k) = f(p_X, p_Y) - p_Z at the rim search's 13 samples beta_k = k pi/12, k = -6..6 (the same frame
-    as rim_point). The switching function of the best sample (model.py, issue 13) is built from them: when a
+    as rim_point). The switching function of the best sample (plant.py, CedraModel.switches) is built from them: when a
     sample that is not a neighbour of the best one overtakes it, the contact point jumps (a wheel at a step's
     edge: from the ground to the face)."""
     n0 = terrain.normal(center[0], center[1])

@@ -1,7 +1,7 @@
 """Forms a scene's equations: restricts the 3D rover to the scene's coordinates, adds terrain and contact, and
 returns the ModelSpec (CasADi functions under the contract's fixed names, plus the named interface).
 
-Restriction (spec section 8): every one of the 17 full coordinates is either one of the scene's coordinates or
+Restriction (docs/model.md, Scenes): every one of the 17 full coordinates is either one of the scene's coordinates or
 the constant 0, so q_full = P q with a constant 0/1 matrix P. Forming Kane's equations with the scene's speeds
 as generalized speeds is the projection P' M P, P' f of the 3D equations (tested in
 tests/test_model_dynamics.py::test_projection): the planar model is the 3D model, not a second hand-written one.
@@ -36,7 +36,7 @@ class ModelOptions:
     contact: str = "compliant"
     locked_wheels: bool = False   # wheels welded to their carriers (a parking brake): no spin coordinates
     heightmap: str = ""           # terrain "heightmap": the grid file (shipped as the FMU's resources/heightmap.txt)
-    drives: bool = False          # motor-and-gear model between tau[i] and the wheel (spec section 11)
+    drives: bool = False          # motor-and-gear model between tau[i] and the wheel (docs/model.md, Drives)
 
 
 def coordinate_map(opt: ModelOptions) -> dict[str, str | None]:
@@ -250,7 +250,7 @@ class CedraModel:
                 (_out(f"wheel[{k}].xi", "rad", f"wheel {k} rotational slip angle xi_{k}: the center's direction of "
                       "travel in the contact plane from the wheel's heading"), xi)]
 
-    # ---------------- force-law switches (issue 13 item 3) ----------------
+    # ---------------- force-law switches ----------------
     @cached_property
     def switches(self):
         """The switching functions of the compliant model's force laws: (s, hold, hold_now, names). Each s_i is
@@ -263,7 +263,7 @@ class CedraModel:
         - joint stops: angle - limit for each stop, and the clip of the stop torque (it only pushes out):
           max(-k (a - hi) - d rate, k (hi - a)) above, min(-k (a - lo) - d rate, k (lo - a)) below, which again
           carry the clip's sign only beyond their stop;
-        - drives (spec section 11): the command against both edges of the motor envelope;
+        - drives (docs/model.md, Drives): the command against both edges of the motor envelope;
         - the best rim sample (non-planar terrain): the rim search starts Newton from the best of 13 samples,
           so the contact point jumps when a sample that is not a neighbour of the best one overtakes it. The
           best index is HELD over a step (argument `hold`, the glue evaluates `hold_now` at the step's start):
@@ -369,7 +369,7 @@ class CedraModel:
                 "carriers")
 
     def check(self):
-        """cedra_check's code (spec.CHECK_REASONS): 1 inside the domain, -1 four-bar toggle, -2 tipped over.
+        """cedra_check's code (contract.CHECK_REASONS): 1 inside the domain, -1 four-bar toggle, -2 tipped over.
         Beyond 80 deg of pitch or roll the body would be lying on the ground, which the model does not know (and
         3D pitch reaches the ZYX Euler singularity at 90 deg): the FMU stops there loudly instead of grinding."""
         tilt = ca.fmax(ca.fabs(self.qf[IDX["pitch"]]), ca.fabs(self.qf[IDX["roll"]]))
