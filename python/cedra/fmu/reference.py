@@ -162,7 +162,7 @@ def index_page(specs: list[ModelSpec]) -> str:
         "degrees (`displayUnit=\"deg\"`, factor 180/pi) and wheel spin rates in rpm (`displayUnit=\"rpm\"`, "
         "factor 30/pi) by an importer that reads display units; the values the FMU exchanges are SI.", "",
         "```{toctree}", ":maxdepth: 1", ""] + [s.name for s in specs] + ["```", "",
-        "| variable | causality | type | unit | displayUnit | quantity | FMUs | description |",
+        "| variable | causality | type | unit | displayUnit | quantity | FMUs | description (of the first index) |",
         "|---|---|---|---|---|---|---|---|"]
     for key, e in sorted(seen.items(), key=lambda kv: (order[kv[1]["v"].causality], kv[0])):
         v = e["v"]
