@@ -49,9 +49,10 @@ def provenance(command: str, wall: float, load_at_start: float) -> str:
         here = Path(__file__).resolve().parent
         rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=here,
                              timeout=10).stdout.strip()
-        if rev and subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                                  text=True, cwd=here, timeout=10).stdout.strip():
-            rev += " with local changes"
+        code = ["python", "fmu_src", "modelDescription", "examples", "tools"]     # what makes the figures (not docs)
+        if rev and subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", *code],
+                                  capture_output=True, text=True, cwd=here.parents[2], timeout=10).stdout.strip():
+            rev += " with local changes to the code"
     except (OSError, subprocess.SubprocessError):
         rev = ""
     when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")

@@ -292,7 +292,7 @@ def main(args):
     missing = set()
     todo = cases(quick)
     announce("report stability", "about a minute on two cores" if quick else
-             "about 5 minutes on two cores (--quick: the hardest cases only, about a minute)", quiet)
+             "about 2-3 minutes on two cores (--quick: the hardest cases only, under a minute)", quiet)
     progress = Progress(len(todo) * len(SOLVERS), "report stability", unit="runs", quiet=quiet)
     for case in todo:
         if not fmu_path(build, case.scene).exists():
