@@ -142,9 +142,9 @@ def test_readme_is_short_and_its_quick_start_runs_as_written(tmp_path):
 
 # what must not appear outside CHANGELOG.md: issue numbers, numbered work periods, section numbers of a document
 # the product does not contain (the patterns are split so that this file does not match itself)
-HISTORY = re.compile("|".join([r"\biss" r"ue\s*#?\d", r"\(iss" r"ue", r"\bsess" r"ions?\s*\d", r"\bsect" r"ions?\s+\d+[a-z]?\b"
-                               r"(?!\s*(?:of the FMI|of FMI))", r"\bspec" r"(?:ification)?\s+(?:§|sect|\d)"]),
-                     re.I)
+HISTORY = re.compile("|".join([r"\biss" r"ue\s*#?\d", r"\(iss" r"ue", r"\bsess" r"ions?\s*\d",
+                               r"\bsect" r"ions?\s+\d+[a-z]?\b(?!\s*(?:of the FMI|of FMI))",
+                               r"\bspec" r"(?:ification)?\s+(?:§|sect|\d)"]), re.I)
 SCANNED = ["README.md", "docs", "python", "fmu_src", "tests", "examples", "tools", "modelDescription", "build.sh",
            ".ci", "pyproject.toml", "requirements.txt"]
 SUFFIXES = {".md", ".py", ".c", ".h", ".toml", ".txt", ".sh", ".html", ".xml", ""}
