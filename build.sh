@@ -3,6 +3,8 @@
 #                    (pip installs requirements.txt and the package with its 'bench' extra: mujoco, for the benchmark)
 # ./build.sh demo    ... then run the main job: the paper's bump run (out/bump2d/: CSV, plots; prints timing)
 # ./build.sh test    ... then run the tests
+# ./build.sh docs    set up .venv, then build the documentation site into build/docs/ (Sphinx, warnings are errors;
+#                    docs/conf.py generates the FMU reference from the variable table; no FMU is built)
 set -euo pipefail
 cd "$(dirname "$0")"
 if [ ! -x .venv/bin/python ]; then
@@ -13,10 +15,13 @@ if ! .venv/bin/pip install -q --disable-pip-version-check -r requirements.txt -e
     cat /tmp/cedra-pip.log; exit 1
 fi
 PY=.venv/bin/python
+if [ "${1:-}" = docs ]; then
+    exec $PY -m sphinx -W --keep-going -n -q -b html docs build/docs
+fi
 $PY -m cedra build --out build
 case "${1:-}" in
     demo) $PY -m cedra simulate bump2d --build build --out out ;;
     test) shift; $PY -m pytest -q -n 2 "$@" ;;
     "") ;;
-    *) echo "usage: $0 [demo|test]" >&2; exit 2 ;;
+    *) echo "usage: $0 [demo|test|docs]" >&2; exit 2 ;;
 esac

@@ -1,4 +1,4 @@
-"""The paper's run: the 2D rover over the Gaussian bump, equal torques from the spec section 10 speed loop.
+"""The paper's run: the 2D rover over the Gaussian bump, equal torques from a speed loop (docs/model.md).
 
     python examples/bump_paper.py           (or: python -m cedra simulate bump_paper)
 

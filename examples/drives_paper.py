@@ -1,5 +1,5 @@
-"""The paper's bump run (spec section 10) with plain torques (bump2d) and with drives (bump2d_drives, spec
-section 11), under the same speed controller (cedra.run.simulate.run_bump): how much of the motors' work goes into
+"""The paper's bump run (docs/model.md) with plain torques (bump2d) and with drives (bump2d_drives, docs/model.md,
+Drives), under the same speed controller (cedra.run.simulate.run_bump): how much of the motors' work goes into
 spinning wheels and wheel slip when the torque command is not limited by a motor's torque-speed envelope.
 
     python examples/drives_paper.py [stop_time]     # writes out/drives_paper/, prints a summary
@@ -103,7 +103,7 @@ def plot(path, runs, noload_speed):
     for a in ax.flat:
         a.grid(True)
     ax[0, -1].legend(fontsize=8)
-    fig.suptitle("The paper's bump run, same speed controller: plain torques vs drives (spec section 11)")
+    fig.suptitle("The paper's bump run, same speed controller: plain torques vs drives")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

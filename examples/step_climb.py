@@ -2,7 +2,7 @@
 
     python examples/step_climb.py           (or: python -m cedra simulate step_climb)
 
-Both runs use the 2D plant over the paper's bump and the drive controller FMU (ctrl.mode 0: the spec section 10
+Both runs use the 2D plant over the paper's bump and the drive controller FMU (ctrl.mode 0: the paper's run's
 speed loop with equal torques; ctrl.mode 1: Eq. 13 wheel rates with a PI loop per wheel). Writes
 out/step_climb/ (one CSV per run, compare.png: wheel slip, friction/normal ratios, torques) and prints slip,
 friction ratio and peak torque for each: the paper's motivation for traction control.

@@ -6,7 +6,7 @@
  * fmi2DoStep(t, h) takes every sample in (t, t + h] from the inputs set before the call (zero-order hold of the
  * inputs over the step), so after the step the outputs are those of the last sample at or before t + h. A master
  * that steps the plant first and then the controller with the plant's new outputs (Gauss-Seidel) therefore
- * applies u(t) = C(y(t)) over [t, t + h], exactly the spec section 10 loop; a master that steps both from the
+ * applies u(t) = C(y(t)) over [t, t + h], exactly the main job's loop; a master that steps both from the
  * same outputs (Jacobi) applies C(y(t - h)): one communication step of delay. */
 #include <math.h>
 #include <stdio.h>

@@ -618,7 +618,7 @@ static const casadi_int *const IN1[] = {SP_X, SP_1, SP_X, SP_2X2};
 static const casadi_int *const OUT1[] = {SP_1X2, SP_2X2, SP_4X2};
 
 /* cedra_rim_contact: (x[7] = [wheel center c, unit axle a, radius R]) -> (e[6] = [p, h(p), h_X(p), h_Y(p)],
- * J[6x7] = de/dx): the wheel's contact point p (spec section 6: the 13-sample rim search and 4 Newton steps, in
+ * J[6x7] = de/dx): the wheel's contact point p (docs/model.md, Contact: the 13-sample rim search and 4 Newton steps, in
  * C, heightmap_rim) with the terrain's height and gradient there, and their exact derivative with respect to the
  * wheel's pose (implicit function theorem at the tangency point). The model uses J explicitly
  * (cedra.mechanics.terrain: the contact's chain rule), so nothing differentiates this function. cedra_rim_point:

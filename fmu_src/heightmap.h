@@ -1,4 +1,4 @@
-/* The heightmap terrain (spec section 5, kind "heightmap"): a grid of heights read from a text file and
+/* The heightmap terrain (docs/model.md, Terrain, kind "heightmap"): a grid of heights read from a text file and
  * interpolated by the natural bicubic spline (C2; plane data gives the plane exactly). The generated model calls
  * the terrain as CasADi external functions (cedra_rim_contact: a wheel's contact point with its derivatives;
  * cedra_heightmap and its Jacobians, up to third derivatives, for single points), which
@@ -46,7 +46,7 @@ void heightmap_activate(heightmap *hm, heightmap_memo *memo);
  * d3 = d vec(Hessian) / d[X, Y] (4 x 2 column-major); any of them may be NULL. 0, or 1 outside the grid. */
 int heightmap_eval(const heightmap *hm, double X, double Y, double *h, double *d1, double *d2, double *d3);
 
-/* the contact point of a wheel (spec section 6, step 1) and its derivatives: x = [center c (3), unit axle a (3),
+/* the contact point of a wheel (docs/model.md, Contact) and its derivatives: x = [center c (3), unit axle a (3),
  * radius R]; e = [p (3), h(p), h_X(p), h_Y(p)]; J (6 x 7, column-major, may be NULL) = de/dx. 0, or 1 when a point
  * of the search is outside the grid (that point in bad). */
 int heightmap_rim(const heightmap *hm, const double x[7], double e[6], double *J, double bad[2]);

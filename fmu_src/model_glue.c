@@ -1,5 +1,5 @@
 /* The model side of the FMU (see model_glue.h): evaluates the generated CasADi functions of the contract
- * (python/cedra/spec.py) on plain arrays. Sizes come from the generated cedra_vars.h. */
+ * (python/cedra/contract.py) on plain arrays. Sizes come from the generated cedra_vars.h. */
 #include "model_glue.h"
 
 #include <math.h>
@@ -216,7 +216,7 @@ int model_check(model_ws *ws, const double *q, const double *u) {
     ws->arg[3] = ws->par;
     ws->res[0] = &ws->ok;
     if (cedra_check(ws->arg, ws->res, ws->iw, ws->w, 0) || !(ws->ok >= 0.5)) {
-        /* the codes of python/cedra/spec.py CHECK_REASONS */
+        /* the codes of python/cedra/contract.py CHECK_REASONS */
         const char *why = ws->ok == -1 ? "the front four-bar cannot be assembled (fork beyond its toggle)"
                           : ws->ok == -2 ? "the body has tipped over (|pitch| or |roll| > 80 deg): the model has "
                                            "no body-ground contact"

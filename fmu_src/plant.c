@@ -12,7 +12,7 @@
 #define NQ CEDRA_NQ
 #define NZ CEDRA_NZ
 #define NX CEDRA_NX
-/* Switch location (issue 13 item 3): steps are cut at the model's force-law switches (cedra_switch). A build with
+/* Switch location: steps are cut at the model's force-law switches (cedra_switch). A build with
  * -DCEDRA_LOCATE_FN=NULL integrates across them (error control only), for comparisons. */
 #ifndef CEDRA_LOCATE_FN
 #define CEDRA_LOCATE_FN model_locate_step

@@ -1,4 +1,4 @@
-/* Rigid wheels on rigid ground: the paper's stick/slip decision tree (Eqs. 63-68, spec section 6 "Rigid model").
+/* Rigid wheels on rigid ground: the paper's stick/slip decision tree (Eqs. 63-68, docs/model.md, "Rigid contact").
  * Works on plain arrays from the generated cedra_M, cedra_f and cedra_contact; knows nothing about FMI. */
 #ifndef CEDRA_RIGID_H
 #define CEDRA_RIGID_H

@@ -20,11 +20,12 @@ _PY = Path(__file__).resolve().parents[1] / "python"
 if str(_PY) not in sys.path:                      # importable from a checkout without installing the package
     sys.path.insert(0, str(_PY))
 
+from cedra import __version__  # noqa: E402
 from cedra.contract import ModelSpec  # noqa: E402
 from cedra.fmu.mass_order import elimination_order  # noqa: E402
-from cedra.fmu.variables import Var, solver_defaults, units, variables  # noqa: E402
+from cedra.fmu.variables import DISPLAY_UNITS, Var, solver_defaults, units, variables  # noqa: E402
 
-GENERATION_TOOL = "cedra (CasADi code generation, hand-written FMI 2.0 CS glue)"
+GENERATION_TOOL = f"cedra {__version__}"       # the package's version (pyproject.toml), also the FMU's version
 LOG_CATEGORIES = [
     ("logEvents", "initialization, settle, steps refused"),
     ("logStatusWarning", "warnings"),
@@ -50,7 +51,7 @@ def spec_guid(spec: ModelSpec) -> str:
     """Same spec (variables, defaults, functions) -> same GUID."""
     h = hashlib.sha256()
     table = [[v.name, v.vr, v.causality, v.variability, v.initial, v.start, v.unit, v.type, v.kind, v.index,
-              v.min, v.max] for v in variables(spec)]
+              v.min, v.max, v.quantity, v.display_unit] for v in variables(spec)]
     h.update(json.dumps(dict(name=spec.name, description=spec.description, q=spec.q_names, z=spec.z_names,
                              q_start=spec.q_start, settle=spec.settle_idx, contact=spec.contact,
                              nc=spec.n_contacts, table=table, stop=spec.stop_time, dt=spec.output_interval),
@@ -92,7 +93,7 @@ def base_unit(unit: str) -> dict | None:
 def model_description(spec: ModelSpec, guid: str) -> etree._Element:
     table = variables(spec)
     root = etree.Element("fmiModelDescription", fmiVersion="2.0", modelName=spec.name, guid=guid,
-                         description=spec.description, generationTool=GENERATION_TOOL,
+                         description=spec.description, generationTool=GENERATION_TOOL, version=__version__,
                          variableNamingConvention="structured", numberOfEventIndicators="0")
     cs = etree.SubElement(root, "CoSimulation", modelIdentifier=spec.name,
                           needsExecutionTool="false", canHandleVariableCommunicationStepSize="true",
@@ -109,6 +110,9 @@ def model_description(spec: ModelSpec, guid: str) -> etree._Element:
         b = base_unit(u)
         if b is not None:
             etree.SubElement(el, "BaseUnit", **{k: str(v) for k, v in b.items()})
+        if u in DISPLAY_UNITS and any(v.display_unit == DISPLAY_UNITS[u][0] for v in table if v.unit == u):
+            name, factor = DISPLAY_UNITS[u]
+            etree.SubElement(el, "DisplayUnit", name=name, factor=_fmt(factor))
     lc = etree.SubElement(root, "LogCategories")
     for name, desc in LOG_CATEGORIES:
         etree.SubElement(lc, "Category", name=name, description=desc)
@@ -124,8 +128,12 @@ def model_description(spec: ModelSpec, guid: str) -> etree._Element:
             attrs["initial"] = v.initial
         sv = etree.SubElement(mv, "ScalarVariable", **attrs)
         t = {}
+        if v.type == "Real" and v.quantity:
+            t["quantity"] = v.quantity
         if v.type == "Real" and v.unit:
             t["unit"] = v.unit
+        if v.type == "Real" and v.display_unit:
+            t["displayUnit"] = v.display_unit
         if v.min is not None and v.type in ("Real", "Integer"):
             t["min"] = _fmt(v.min) if v.type == "Real" else str(int(v.min))
         if v.max is not None and v.type in ("Real", "Integer"):

@@ -1,4 +1,4 @@
-"""An exhaustive reference for the contacts of a wheel (spec section 6a item 5), independent of
+"""An exhaustive reference for the contacts of a wheel (docs/model.md, Several contacts per wheel, item 5), independent of
 cedra.mechanics.contact's search: g sampled every 0.01 degree of the lower half rim, every maximum and saddle polished
 by Newton on g' = 0 to machine precision (derivatives by central differences of g, no symbolic chain), and the
 penetration shared by the spec's rule, written as its own recursion over any number of maxima."""
@@ -69,7 +69,7 @@ def extrema(g):
 
 
 def shares(gmax, saddles):
-    """Vertical penetration of each maximum (spec section 6a item 2)."""
+    """Vertical penetration of each maximum (docs/model.md, Several contacts per wheel, item 2)."""
     def group(idx, base, pool):
         if len(idx) == 1:
             return {idx[0]: gmax[idx[0]] - base + pool}

@@ -1,4 +1,4 @@
-"""The misuse matrix: how a cedra FMU answers an importer that calls it wrongly (issue 11).
+"""The misuse matrix: how a cedra FMU answers an importer that calls it wrongly.
 
 Each case puts a fresh instance into a phase (instantiated, initialization mode, step complete, terminated, or
 failed after a discarded step), makes ONE wrong call through the raw C entry points (ctypes, so NULL pointers,
@@ -10,7 +10,7 @@ the glue's contract say:
   the same results as an instance that never saw the call (two more steps, every output compared exactly);
   for a discarded step: fmi2Terminated is true and the outputs are those before the step, never NaN.
 
-    python tests/misuse_matrix.py build/*.fmu      # prints the README's table: cases per class and result
+    python tests/misuse_matrix.py build/*.fmu      # prints the table of docs/reliability.md: cases per class and result
 
 tests/test_fmu_misuse.py runs every class on every shipped FMU.
 """
@@ -209,7 +209,7 @@ class Probe:
 
 @dataclass(frozen=True)
 class Case:
-    cls: str                      # the class of misuse (the README's table rows)
+    cls: str                      # the class of misuse (the rows of docs/reliability.md's table)
     name: str
     phase: str                    # one of PHASES
     action: Callable[[Probe], int]

@@ -1,4 +1,4 @@
-"""The MuJoCo side by side of the benchmark (issue 13, item 2): cedra.reports.mujoco_model and `python -m cedra bench
+"""The MuJoCo side by side of the benchmark: cedra.reports.mujoco_model and `python -m cedra bench
 --quick`. mujoco is an optional dependency (the `bench` extra, which ./build.sh installs); without it these tests
 are skipped, and nothing else in the project needs it."""
 from __future__ import annotations

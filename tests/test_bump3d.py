@@ -1,8 +1,8 @@
-"""bump3d (issue 13, item 1): the paper's run in 3D, on the `bump` terrain (constant in Y). Started symmetric
+"""bump3d: the paper's run in 3D, on the `bump` terrain (constant in Y). Started symmetric
 (start.y = 0, start.yaw = 0, the same torque on all six wheels) under the main job's controller
 (cedra.run.simulate.run_bump), it must give the planar scene bump2d's results.
 
-How the wheels pair up (spec section 8): the planar model's coordinates move wheels 1 and 3 (and 2 and 4) as one,
+How the wheels pair up (docs/model.md, Scenes): the planar model's coordinates move wheels 1 and 3 (and 2 and 4) as one,
 so its equations carry both wheels' masses and contact forces; its outputs still report each wheel's own force
 (the 3D equations are projected, `P' M P, P' f`, and each of the six contacts is computed on its own), so 2D
 `wheel[1].Fn` = `wheel[3].Fn` = the force on ONE bogie front wheel, half of what the pair carries. Checked here:

@@ -1,4 +1,4 @@
-"""The drive controller FMU (issue 10) in the loop with the plant, through the project's master (cedra.run.cosim):
+"""The drive controller FMU in the loop with the plant, through the project's master (cedra.run.cosim):
 the turn on flat ground follows the command (Eqs. 9-22 in the loop, not only as functions), the inverse
 kinematics slips less than equal torques on the paper's bump, the equal-torque mode is the main job, and the
 controller FMU passes the checks every shipped FMU passes."""
@@ -93,7 +93,7 @@ def test_inverse_kinematics_slips_less_than_equal_torques_on_the_bump(bump_runs)
 
 
 def test_equal_torque_mode_is_the_main_job(bump_runs, tmp_path_factory):
-    """ctrl.mode = 0 through the controller FMU with the plant stepped first is the spec section 10 loop that the
+    """ctrl.mode = 0 through the controller FMU with the plant stepped first is the paper's run's loop that the
     main job runs in Python (cedra.run.simulate): the same arithmetic, so the same numbers."""
     names, rows, _, info = run_bump(fmu("bump2d", tmp_path_factory), 15.0)
     assert info["ok"]

@@ -1,4 +1,4 @@
-"""Drives (spec section 11): each wheel's torque command clipped to a DC motor's torque-speed envelope at the
+"""Drives (docs/model.md, Drives): each wheel's torque command clipped to a DC motor's torque-speed envelope at the
 wheel, minus the gear's viscous loss. The law itself against numpy at points inside, on and outside the
 envelope; drives off leaves the model as it was; the scene option is validated like the other keys; through the
 shipped bump2d_drives FMU: the energy balance with the applied torques' work, and a lifted rover whose wheels
@@ -26,7 +26,7 @@ DRIVE_PARAMS = ("drive_stall_torque", "drive_noload_speed", "drive_viscous")
 
 
 def applied_torque(cmd, omega, stall, noload, viscous):
-    """Spec section 11 in numpy: the reference the model is checked against."""
+    """The drive law (docs/model.md, Drives) in numpy: the reference the model is checked against."""
     return np.clip(cmd, -stall * (1 + omega / noload), stall * (1 - omega / noload)) - viscous * omega
 
 
@@ -279,7 +279,7 @@ def test_drives_paper_example(tmp_path):
     """The example's two bump runs up to 5 s: the rover has reached the bump and stalls at it for a while, its
     bogie wheels off the ground; plain torques spin them to ~830 rad/s there, the drives hold every wheel under
     the no-load speed (later, rolling down the bump faster than 0.65 m/s, the ground spins the wheels past it
-    while the drives brake: the README's full-run figures)."""
+    while the drives brake: the full-run figures of docs/scenarios.md)."""
     built = REPO / "build"          # else the example builds both FMUs into tmp_path itself
     both_built = all((built / f"{s}.fmu").exists() for s in drives_paper.SCENES)
     figures = drives_paper.run(build_dir=built if both_built else tmp_path, out_dir=tmp_path / "out",

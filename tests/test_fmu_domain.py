@@ -20,8 +20,8 @@ def test_flipping_torque_is_a_loud_discard(tmp_path):
     assert fmu.terminated()
     # The domain reason: the body tips over, or the front four-bar is driven past its toggle first (50 N.m
     # slams the fork through its lower stop). Which comes first depends on resolving the stop impacts at
-    # t = 0.03-0.04 s: main's rodas4 at tol 1e-6 integrated across them and reached "tipped over" at t = 0.095 s,
-    # but the same code at tol 1e-7, 1e-8 and 1e-9 (and the switch-located run at 1e-6, issue 13) drives the fork
+    # t = 0.03-0.04 s: rodas4 at tol 1e-6 unlocated integrates across them and reaches "tipped over" at t = 0.095 s,
+    # at tol 1e-7, 1e-8 and 1e-9 (and with switch location at 1e-6) the run drives the fork
     # into its toggle at t = 0.041 s. Either is a loud discard with the model's reason.
     assert any("tipped over" in m or "fork beyond its toggle" in m for m in fmu.messages), fmu.messages
     fmu.close()

@@ -4,9 +4,8 @@ UndefinedBehaviorSanitizer, a short wall-time budget each; any finding fails wit
 `python -m cedra fuzz <scene> --seed S --sequences 1 --trace`). And bugs planted in the fuzzer's calls, which it
 must report, so a green run means something.
 
-Known red (issue 11): against the glue of this branch the fuzz runs find the glue bugs the issue lists (setters
-that are not all-or-nothing, a DoStep that returns OK without advancing, calls that do not return); they stay
-failures here, not skips: the glue's fixes make them pass.
+The classes of glue bugs these runs guard against: setters that are not all-or-nothing, a DoStep that returns OK
+without advancing, calls that do not return; a finding is a failure, never a skip.
 
 Environment: CEDRA_FUZZ_SECONDS (default 30) per scene, CEDRA_FUZZ_SEED (default 1)."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 11's classes on the toy FMU, each reproduced first: no step that returns fmi2OK without integrating, a
+"""What an importer can rely on, checked on the toy FMU: no step that returns fmi2OK without integrating, a
 bounded cost per fmi2DoStep, time that must advance, all-or-nothing setters, checked deserialized states, the
 importer's tolerance. (tests/test_fmu_misuse.py runs the misuse matrix on every shipped FMU.)"""
 from __future__ import annotations

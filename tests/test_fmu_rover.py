@@ -1,5 +1,5 @@
 """The independent checks on every shipped scene's FMU (not only the toy model), and the rover-specific behaviour
-issue 3 asks for: the three solvers agree, bad input is refused with a logged reason, FMU state round trips.
+an importer relies on: the three solvers agree, bad input is refused with a logged reason, FMU state round trips.
 
 Uses build/<scene>.fmu when `./build.sh` has built it (CI does), else builds into pytest's tmp dir."""
 from __future__ import annotations
@@ -67,8 +67,8 @@ def run(path, method, tol, h_max, stop=1.0):
 
 
 def test_three_solvers_agree_on_the_bump_scene(fmu_paths):
-    # reference rodas4 at 1e-9: at 1e-10 it underflows at a touchdown, where the spec's contact law
-    # max(0, k delta - d v_n) jumps by d |v_n| (a discontinuous right-hand side; README, issue 3 note)
+    # reference rodas4 at 1e-9: at 1e-10 it underflows at a touchdown, where the compliant contact law
+    # max(0, k delta - d v_n) jumps by d |v_n| (a discontinuous right-hand side; docs/solvers.md, Force-law switches)
     ref = run(fmu_paths["bump2d"], 2, 1e-9, 0.01)
     for method, tol, h_max, bound in ((2, 1e-7, 0.01, 1e-5), (1, 1e-7, 0.01, 1e-5), (0, 1.0, 5e-5, 1e-5),
                                       (3, 1e-7, 0.01, 1e-5)):

@@ -1,4 +1,4 @@
-"""The heightmap terrain (spec section 5): the C spline against an independent one, its derivatives, the file
+"""The heightmap terrain (docs/model.md, Terrain): the C spline against an independent one, its derivatives, the file
 reader's errors, the model on a heightmap of a plane against the analytic slope, and the FMU reading its grid
 from resources/ (per instance, loud when the rover leaves the grid)."""
 from __future__ import annotations
@@ -163,7 +163,7 @@ def test_model_on_a_heightmap_plane_equals_the_analytic_slope(tmp_path):
             assert np.max(np.abs(x - y)) <= 1e-8 * np.max(np.abs(y))
 
 
-# ---------------------------------------------------------------- the wheel's contact point in C (issue 13 item 5)
+# ---------------------------------------------------------------- the wheel's contact point in C
 def hills_states(model, n, seed):
     """n random states of the hills3d model with the rover on the hills (X 0.8..3.2 m), its wheels pressed a few
     mm into the ground (cedra_guess), joints and speeds perturbed. Makes the shipped grid the active map (another

@@ -1,4 +1,4 @@
-"""Wheel kinematics (paper Eqs. 5-22, spec section 7): Jacobians against finite differences of the transform
+"""Wheel kinematics (paper Eqs. 5-22, docs/model.md, Kinematics): Jacobians against finite differences of the transform
 chains, the inverse solution against a forward rigid-body check, Eq. 11 against the closed forms of Eq. 13, and
 the geometric steering angles against the turn center."""
 import numpy as np

@@ -268,7 +268,7 @@ def test_static_equilibrium(settled, key):
         assert abs(y[f"wheel[{i}].Fx"]) < 1e-9 and abs(y[f"wheel[{i}].Fy"]) < 1e-9
     udot = b.m.udot(q, np.zeros(b.n), inp, par)
     assert np.max(np.abs(udot)) < 1e-8, udot
-    # the static pose differs from the design pose a little (spec section 4), but not much
+    # the static pose differs from the design pose a little (docs/model.md, Parameters), but not much
     assert 0 < 0.2 - q[b.names.index("z")] < 0.005
 
 

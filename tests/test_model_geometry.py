@@ -1,4 +1,4 @@
-"""Geometry and kinematics of the CEDRA model against the spec (sections 2 and 4), computed independently where
+"""Geometry and kinematics of the CEDRA model against docs/model.md, computed independently where
 possible: design pose, four-bar closure, assembly check, and symbolic velocities vs finite differences."""
 import casadi as ca
 import numpy as np
@@ -28,7 +28,7 @@ def _fn(m, exprs, with_u=False):
 
 
 def _theta5_numpy(theta4, p=D):
-    """Spec section 2, written out with numpy (no transforms): theta5 of the four-bar."""
+    """The mechanism (docs/model.md), written out with numpy (no transforms): theta5 of the four-bar."""
     A = np.array([p["fork_ax"], 0, p["fork_az"]])
     B = np.array([p["fork_bx"], 0, p["fork_bz"]])
     C = A + p["fork_a"] * np.array([np.cos(theta4), 0, np.sin(theta4)])
@@ -50,12 +50,12 @@ def test_design_pose(which, request):
     np.testing.assert_allclose(centers[:, 2], D["R_w"], rtol=0, atol=1e-12)
     body = np.array(_fn(m, [m.rover.bodies[0].position])(q, par)).ravel()
     assert abs(body[2] - 0.20) < 1e-12
-    # wheel centers where the spec puts them (x in the body frame = world frame in the design pose)
+    # wheel centers where docs/model.md puts them (x in the body frame = world frame in the design pose)
     xs = [D["bogie_x"] + D["bogie_half"], D["bogie_x"] - D["bogie_half"]] * 2 + [D["rear_x"], 0.30]
     ys = [D["bogie_y"], D["bogie_y"], -D["bogie_y"], -D["bogie_y"], 0, 0]
     np.testing.assert_allclose(centers[:, 0], xs, rtol=0, atol=1e-12)
     np.testing.assert_allclose(centers[:, 1], ys, rtol=0, atol=1e-12)
-    # the coupler points straight up in the design pose (theta5 = pi/2 with the spec's numbers)
+    # the coupler points straight up in the design pose (theta5 = pi/2 with the model's numbers)
     th5 = float(_fn(m, [m.rover.theta5])(q, par))
     assert abs(th5 - np.pi / 2) < 1e-12
     # the same numbers through the contract's output function
@@ -143,7 +143,7 @@ def test_linear_velocities_fd(m3):
 
 
 def _rotations_numpy(qd, names):
-    """World rotation matrices of the body, the fork coupler and the six wheels, built from the spec's words
+    """World rotation matrices of the body, the fork coupler and the six wheels, built from docs/model.md's words
     (Euler ZYX body; bogies rotate about -y; wheel spin about +y; rear steer about body z; coupler about -y by
     theta5; front steer about the coupler's x axis s), with theta5 computed by numpy."""
     v = dict(zip(names, qd))

@@ -1,4 +1,4 @@
-"""The plant's outputs the paper's inverse kinematics and steering need (issue 10): joint rates, the contact angle
+"""The plant's outputs the paper's inverse kinematics and steering need: joint rates, the contact angle
 psi_i in the rover frame, its rate, and the rotational slip angle xi_i, each checked against an independent
 derivation: the 2D relation psi_R = -(slope + pitch), the kinematics' own contact frame (kinematics.contact_frame),
 finite differences, and a rigid body sliding at a known angle."""

@@ -1,4 +1,4 @@
-"""Progress on long work (issue 12 item 4): a bar redrawn in place on a terminal, a plain line per quarter
+"""Progress on long work: a bar redrawn in place on a terminal, a plain line per quarter
 otherwise, nothing when quiet; the CLI's long commands take --quiet."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""`python -m cedra report defaults` (issue 13 item 6; --method since session 7): a scene's run at its default
+"""`python -m cedra report defaults` (also with --method): a scene's run at its default
 settings, or at another method / tolerance, against the same closed loop at rodas4 tol 1e-9."""
 from types import SimpleNamespace
 

@@ -1,4 +1,4 @@
-"""Work-precision report, small subset (issue 5): the reference is converged, each solver's error falls with its
+"""Work-precision report, small subset: the reference is converged, each solver's error falls with its
 setting, the peers run on the same equations. The full sweep is `python -m cedra report precision`."""
 import numpy as np
 import pytest

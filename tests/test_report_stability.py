@@ -1,4 +1,4 @@
-"""Stability campaign, small subset (issue 5): the hardest stiff cases. The full campaign is
+"""Stability campaign, small subset: the hardest stiff cases. The full campaign is
 `python -m cedra report stability`."""
 import pytest
 

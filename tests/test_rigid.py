@@ -51,7 +51,7 @@ def test_static_equilibrium_matches_stiff_compliant_ground(fmus):
     assert np.all(np.abs(rigid - stiff) <= 0.01 * stiff), (rigid, stiff)
 
 
-# the held-mode integration (the rigid scenes' rodas4 default before session 9) and Moreau-Jean time stepping
+# the held-mode integration (rodas4 on the held modes) and Moreau-Jean time stepping
 STEPPERS = {"rodas4": {"solver.method": 2}, "moreau": {"solver.method": 4, "solver.h_max": 1e-3}}
 
 
@@ -211,7 +211,7 @@ def test_mean_forces_equal_the_forces_where_they_are_steady(bump):
 
 
 def test_moreau_steps_converge_in_the_landings_mean_force(fmus):
-    """Moreau-Jean (the rigid scenes' default since session 9): the peak mean normal force of the bump run, the
+    """Moreau-Jean (the rigid scenes' default): the peak mean normal force of the bump run, the
     rear wheel's landing from the bump at t = 5.95 s, at the default step and at a quarter of it agree to 1e-3 (the
     held-mode integration's runs at tolerances 1e-7..1e-11 spread by 3e-3 there). Measured over the whole run
     (`python -m cedra report defaults --scene bump2d_rigid`): 607.49 N at h = 1e-4, 607.57 N at 1e-5."""

@@ -1,4 +1,4 @@
-"""The scenario scripts in examples/ (issue 10 item 3): each runs with a short stop time and writes its outputs;
+"""The scenario scripts in examples/: each runs with a short stop time and writes its outputs;
 `python -m cedra simulate --list` lists them; bad scenario input fails with a clear message before any
 simulation; the slope traverse holds its line better than equal torques."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 13, items 3 and 4 at the solver level (fmu_src/solver.c through tests/c/solver_harness.c):
+"""Switch location and the reduced stage solve at the solver level (fmu_src/solver.c through tests/c/solver_harness.c):
 - the RODAS4 stage system solved with the n2 x n2 Schur complement of the second-order structure x = [q, u, z]
   equals the dense n x n solve to 1e-12, on the rover's own Jacobians at random states (bump2d, flat3d);
 - a touchdown inside a step is located to 1e-9 s or better by the adaptive solvers with a switch-location

@@ -1,4 +1,4 @@
-"""ROS34PW2, the Rosenbrock-W method (solver.method = 3, issue 13 item 4), through tests/c/solver_harness.c:
+"""ROS34PW2, the Rosenbrock-W method (solver.method = 3), through tests/c/solver_harness.c:
 - order 3 at fixed steps on a linear and a nonlinear problem with the exact Jacobian, and still order 3 with a wrong
   one (0.5x, 2x, zero): the W property that lets it keep a Jacobian over many steps and calls;
 - with F declared autonomous the Jacobian is kept: far fewer Jacobians than steps, also across calls when the caller

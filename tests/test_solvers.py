@@ -386,7 +386,7 @@ def test_lu_reports_singular(lib):
 
 
 def test_cholesky_solves_the_rovers_mass_matrix_and_refuses_what_is_not_positive_definite(lib):
-    """linalg_chol_factor_perm/solve in the natural order (the FMU's mass-matrix solve, issue 13): equal to numpy on
+    """linalg_chol_factor_perm/solve in the natural order (the FMU's mass-matrix solve): equal to numpy on
     the 3D rover's own mass matrix at random poses (only the lower triangle read), and 1, not a wrong answer, for an
     indefinite, a singular or a NaN matrix (the glue then falls back to the pivoting LU)."""
     from cedra.models.scene import load_shipped

@@ -1,4 +1,4 @@
-"""The drive system as an SSP package (issue 10 item 2): the SSD validates against FMPy's SSP schemas, the
+"""The drive system as an SSP package: the SSD validates against FMPy's SSP schemas, the
 package runs unchanged in FMPy's SSP simulator and in libcosim, the project's master set to either master's
 convention reproduces that master's run, and the two masters agree on the body's path."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Sweeps on Dask (issue 12): bad sweep files fail before any run; a 200-run sweep on a LocalCluster; the same
+"""Sweeps on Dask: bad sweep files fail before any run; a 200-run sweep on a LocalCluster; the same
 table with 1 and 2 workers; a worker killed mid-sweep loses nothing; --resume reruns nothing already done."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Force-law switches (issue 13, item 3): the generated switching functions (cedra_switch, contract.py) and their
+"""Force-law switches: the generated switching functions (cedra_switch, contract.py) and their
 location by the FMU's adaptive solvers (fmu_src/model_glue.c model_locate_step, fmu_src/solver.c).
 
 - cedra_switch's entries change sign exactly where the force laws switch: the contact switch is the penetration,
@@ -117,7 +117,7 @@ def test_tol_1e10_runs_through_the_touchdown_that_stopped_it(bump2d):
 
 
 def test_bump2d_rejects_few_steps(bump2d):
-    """Issue 13: fewer than 15 % rejected steps at tol 1e-6 (62 % before: 4590 of 7375 over 15 s); over the bump
+    """Fewer than 15 % rejected steps at tol 1e-6 (without switch location: 62 %, 4590 of 7375 over 15 s); over the bump
     (8 s). Measured: 5.5 % over 15 s."""
     names, data, _, info = run_bump(bump2d, 8.0, {})
     last = dict(zip(names, data[-1]))

@@ -1,4 +1,4 @@
-"""view.html in headless Chromium (issue 12 item 3): the page loads from file:// without any network request,
+"""view.html in headless Chromium: the page loads from file:// without any network request,
 plays, the rover moves in the picture between two screenshots, a paused page does not change, and the console has
 no errors; a 2D run (the main job's) and a 3D run (turn_flat).
 

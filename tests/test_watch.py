@@ -1,4 +1,4 @@
-"""Runs a person can watch (issue 12 item 3, cedra.run.watch, cedra.rover.skeleton): the drawing's geometry is the
+"""Runs a person can watch (cedra.run.watch, cedra.rover.skeleton): the drawing's geometry is the
 FMU's, the ground forces add up to the weight at rest, the terrain is the FMU's, the GIF has a frame per 1/12 s
 and they differ, the page is self-contained, and the main job writes both (`--no-video`: neither)."""
 from __future__ import annotations

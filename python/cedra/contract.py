@@ -45,7 +45,7 @@ except the contact forces, and the glue solves for accelerations and contact for
                   lambda_k (same frame) enters as M udot = f + W' lambda. Outputs named wheel[i].Fn/Fx/Fy/mode are
                   computed by the glue from its solution (cedra_out gives 0 there).
 
-Force-law switches (issue 13; generated only when the model has switches, len(switch_names) > 0):
+Force-law switches (generated only when the model has switches, len(switch_names) > 0):
     cedra_switch  (q, u, inp, par, hold[nh]) -> (s[nsw], hold_now[nh])
                   switching functions: each s_i is continuous in the state and changes sign exactly where a force
                   law switches (contact onset, a clip, a joint stop, ...), so the glue cuts an adaptive step whose

@@ -158,7 +158,7 @@ int harness_chol_solve_perm(int n, const double *a, const int *perm, double *b, 
     return rc;
 }
 
-/* ---- issue 13: the RODAS4 stage system with the second-order structure, and switch location ---- */
+/* ---- the RODAS4 stage system with the second-order structure, and switch location ---- */
 
 /* Solve (fac I - J) x = b for n <= 64 twice: densely (out_full) and with the n2 x n2 Schur complement (out_red).
  * M NULL: the reduced solve reads J too; else it reads Jm, J with its u rows premultiplied by M (solver.h mass_rows).

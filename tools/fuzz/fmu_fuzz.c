@@ -24,7 +24,7 @@
  *   (e) a call on an instance that returns fmi2Error leaves the instance's serialized state byte for byte as it
  *       was. No call is exempt: the FMI 2.0 standard lets fmi2Error leave the instance in the state before the
  *       call ("the function call had no effect") for misuse, and for ExitInitializationMode an error must not
- *       leave a half-computed start either (the brief of issue 11);
+ *       leave a half-computed start either;
  *   (f) every non-OK status of a call on an instance with a logger reached the logger with a non-empty message
  *       (also a failed fmi2Instantiate with a logger), through that instance's componentEnvironment;
  *   (g) fmi2Instantiate with a wrong GUID, a wrong fmuType or without allocate/free functions returns NULL;

@@ -47,6 +47,8 @@ class Var:
     min: float | None = None
     max: float | None = None
     min_exclusive: bool = False   # the glue refuses value == min (XML min is inclusive: it only gives min)
+    quantity: str | None = None   # Real only: the physical quantity (Angle, Force, ...), see quantity_of
+    display_unit: str | None = None   # Real only: the unit an importer shows (deg, rpm), see DISPLAY_UNITS
 
 
 def solver_method_index(method) -> int:
@@ -122,6 +124,9 @@ def variables(spec: ModelSpec) -> list[Var]:
             r["unit"] = _q_unit(spec.q_names[r["index"]], speed=r["kind"] == "u_start")
         if r["type"] != "Real":
             r["unit"] = None
+        else:
+            r["quantity"] = quantity_of(r["name"], r["unit"])
+            r["display_unit"] = display_unit_of(r["name"], r["unit"])
         _finite(r["start"], f"start value of {r['name']}")
         out.append(Var(vr=vr, **r))
     return out
@@ -188,6 +193,41 @@ _ANGLE_PREFIXES = ("theta", "gamma", "pitch", "roll", "yaw", "phi", "psi", "angl
 def _q_unit(qname: str, speed: bool) -> str:
     base = "rad" if qname.lower().startswith(_ANGLE_PREFIXES) else "m"
     return f"{base}/s" if speed else base
+
+
+# The quantity of every Real variable (modelDescription's `quantity` attribute, as Modelica names them), by unit;
+# QUANTITY_BY_NAME first for variables whose unit alone does not say it.
+QUANTITY_BY_UNIT = {
+    "1": "Dimensionless", "1/s": "Frequency", "J": "Energy", "N": "Force", "N.m": "Torque", "kg": "Mass",
+    "kg.m2": "MomentOfInertia", "m": "Length", "m/s": "Velocity", "m/s2": "Acceleration", "rad": "Angle",
+    "rad/s": "AngularVelocity", "s": "Time", "N/m": "TranslationalSpringConstant",
+    "N.s/m": "TranslationalDampingConstant", "N.m/rad": "RotationalSpringConstant",
+    "N.m.s/rad": "RotationalDampingConstant", "N.m.s/m": "TorquePerVelocity", "N.m/m": "TorquePerLength",
+}
+QUANTITY_BY_NAME = {"mu": "CoefficientOfFriction", "solver.tol": "Tolerance", "rigid_alpha": "Frequency",
+                    "ctrl.trim_ki": "Gain"}
+# Display units an importer may show instead of the variable's unit: value in display unit = factor * value.
+DISPLAY_UNITS = {"rad": ("deg", 180.0 / math.pi), "rad/s": ("rpm", 30.0 / math.pi)}
+# rad/s variables shown in rpm: the wheels' spin rates (the others, body and joint rates, stay in rad/s)
+_RPM_PREFIXES = ("wheel[", "ctrl.omega_ref[", "start.speed.gamma", "drive_noload_speed")
+
+
+def quantity_of(name: str, unit: str) -> str:
+    """The quantity attribute of a Real variable with this name and unit."""
+    if name in QUANTITY_BY_NAME:
+        return QUANTITY_BY_NAME[name]
+    if unit not in QUANTITY_BY_UNIT:
+        raise ValueError(f"variable {name}: no quantity known for the unit {unit!r} (add it to QUANTITY_BY_UNIT)")
+    return QUANTITY_BY_UNIT[unit]
+
+
+def display_unit_of(name: str, unit: str) -> str | None:
+    """deg for every angle, rpm for the wheels' spin rates, None (the unit itself) otherwise."""
+    if unit == "rad":
+        return "deg"
+    if unit == "rad/s" and name.startswith(_RPM_PREFIXES):
+        return "rpm"
+    return None
 
 
 def units(table: list[Var]) -> list[str]:

@@ -1,4 +1,4 @@
-"""Wheel-disk contact geometry and the compliant contact law (spec section 6). No CEDRA numbers here."""
+"""Wheel-disk contact geometry and the compliant contact law (docs/model.md, Contact). No CEDRA numbers here."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -22,7 +22,7 @@ class ContactGeometry:
 
 
 def rim_point(center, axle, terrain: Terrain, radius):
-    """The rim point lying deepest below the terrain, measured vertically (spec section 6, step 1): the best of
+    """The rim point lying deepest below the terrain, measured vertically (docs/model.md, Contact): the best of
     13 samples, then 4 Newton steps that never move toward a minimum. One point per wheel: the contact of rigid
     scenes and the reference of the heightmap's C search (rim_contacts has several)."""
     rim, gfun = _rim_frame(center, axle, terrain, radius)
@@ -45,7 +45,7 @@ def rim_point(center, axle, terrain: Terrain, radius):
 
 def _rim_frame(center, axle, terrain: Terrain, radius, frame=False):
     """The rim's parametrization p(beta) = c + R_w (cos beta r1 + sin beta r2), beta = 0 along the projected terrain
-    normal at the center (spec section 6, item 1), and g(beta) = f(p_X, p_Y) - p_Z with its first two
+    normal at the center (docs/model.md, Contact), and g(beta) = f(p_X, p_Y) - p_Z with its first two
     beta-derivatives by the chain rule on the terrain's own gradient and Hessian."""
     n0 = terrain.normal(center[0], center[1])
     t = n0 - ca.dot(n0, axle) * axle
@@ -80,7 +80,7 @@ def slope_angle(axle, n):
 
 
 def contact_geometry(center, axle, terrain: Terrain, radius) -> ContactGeometry:
-    """One contact per wheel: the deepest rim point (spec section 6). Rigid scenes and the heightmap use it."""
+    """One contact per wheel: the deepest rim point (docs/model.md, Contact). Rigid scenes and the heightmap use it."""
     if terrain.external_rim:
         # heightmap: the same search in C (one call per wheel, its derivatives exact; see terrain.Terrain)
         p, h, grad = terrain.rim_contact(center, axle, radius)
@@ -93,7 +93,7 @@ def contact_geometry(center, axle, terrain: Terrain, radius) -> ContactGeometry:
     return ContactGeometry(p, n, contact_frame(axle, n), (h - p[2]) * n[2], slope_angle(axle, n))
 
 
-# ---------------- several contacts per wheel (spec section 6a) ----------------
+# ---------------- several contacts per wheel (docs/model.md, Several contacts per wheel) ----------------
 MAX_CONTACTS = 3
 ABSENT_DEPTH = -1.0     # the depth of a contact slot that holds no maximum (m; never in contact)
 
@@ -106,7 +106,7 @@ def _ratio(a, b):
 
 def shared_depths(g, s):
     """The vertical penetrations of up to three maxima g = [g1, g2, g3] ordered by beta, joined by the saddles
-    s = [s12, s23] (the smallest g between neighbours), present = len(g). Spec section 6a item 2: maxima on separate
+    s = [s12, s23] (the smallest g between neighbours), present = len(g). docs/model.md, Several contacts per wheel, item 2: maxima on separate
     arcs (saddle <= 0) are separate; two maxima joined by a saddle s > 0 share the penetration below it in
     proportion to their rises above it; three on one arc split at the lowest saddle first (each side in proportion
     to its highest rise), then within the side the same way. Written as one recursion: a group of maxima on a
@@ -158,7 +158,7 @@ def terrain_functions(terrain: Terrain) -> dict[str, ca.Function]:
 
 
 def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None):
-    """The contacts of a wheel (spec section 6a): the local maxima of g on the lower half rim, up to MAX_CONTACTS
+    """The contacts of a wheel (docs/model.md, Several contacts per wheel): the local maxima of g on the lower half rim, up to MAX_CONTACTS
     ordered by beta, with the saddles between neighbours and their shared penetrations. Returns the contact slots
     (always MAX_CONTACTS; a slot without a maximum has depth ABSENT_DEPTH) and their presence flags. Planar terrain
     and the heightmap: one contact (contact_geometry).
@@ -215,7 +215,7 @@ def compliant_force(geo: ContactGeometry, v_point, ground_k, ground_d, mu, v_eps
 
 def rim_samples(center, axle, terrain: Terrain, radius) -> list:
     """g(beta_k) = f(p_X, p_Y) - p_Z at the rim search's 13 samples beta_k = k pi/12, k = -6..6 (the same frame
-    as rim_point). The switching function of the best sample (model.py, issue 13) is built from them: when a
+    as rim_point). The switching function of the best sample (plant.py, CedraModel.switches) is built from them: when a
     sample that is not a neighbour of the best one overtakes it, the contact point jumps (a wheel at a step's
     edge: from the ground to the face)."""
     n0 = terrain.normal(center[0], center[1])

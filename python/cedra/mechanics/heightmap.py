@@ -121,7 +121,7 @@ def external() -> ca.Function:
 
 def rim_external(jacobian: bool = True) -> ca.Function:
     """cedra_rim_contact: (x[7] = [wheel center, unit axle, radius]) -> (e[6] = [p, h(p), h_X(p), h_Y(p)],
-    J[6x7] = de/dx), the wheel's contact point by the spec's rim search (in C, heightmap.c: heightmap_rim) and its
+    J[6x7] = de/dx), the contact point by the rim search (docs/model.md, Contact; C: heightmap_rim) and its
     exact derivative (implicit function theorem), on the active map (see load). jacobian=False: cedra_rim_point,
     x -> e alone."""
     _ctypes_lib()

@@ -1,4 +1,4 @@
-"""Terrain kinds Z = f(X, Y) (spec section 5). Terrain numbers are FMU inputs, so they are symbols here."""
+"""Terrain kinds Z = f(X, Y) (docs/model.md, Terrain). Terrain numbers are FMU inputs, so they are symbols here."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -62,7 +62,7 @@ def apply(transform, point):
 
 
 def e_xz(a):
-    """The spec's e(a) = (cos a, 0, sin a): a unit vector in the x-z plane, a > 0 pointing up."""
+    """docs/model.md's e(a) = (cos a, 0, sin a): a unit vector in the x-z plane, a > 0 pointing up."""
     return ca.vertcat(ca.cos(a), 0, ca.sin(a))
 
 

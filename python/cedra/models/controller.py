@@ -1,4 +1,4 @@
-"""The drive controller FMU (issue 10, spec section 12): the paper's inverse kinematics (Eqs. 9-13) and geometric
+"""The drive controller FMU (docs/model.md, Controller): the paper's inverse kinematics (Eqs. 9-13) and geometric
 steering (Eqs. 14-22) in the loop, as a sampled-data block beside the plant FMU.
 
 Every `ctrl.period` (default 0.01 s) it reads the commanded forward speed `cmd.v` and yaw rate `cmd.yaw_rate`
@@ -14,7 +14,7 @@ Every `ctrl.period` (default 0.01 s) it reads the commanded forward speed `cmd.v
                    the measured speed and yaw rate (ctrl.trim_ki; |trim| <= 1 m/s, 1 rad/s) corrects the speed
                    and yaw rate handed to Eq. 13 until the measured ones match the commands (the steering keeps
                    the commanded turn center);
-    ctrl.mode = 0  equal torques (the paper's run, spec section 10): one PI on the forward speed (ctrl.speed_kp,
+    ctrl.mode = 0  equal torques (the paper's run): one PI on the forward speed (ctrl.speed_kp,
                    ctrl.speed_ki), the same torque on all six wheels.
 In both modes (3D) the steered wheels get the geometric steering angles (Eqs. 14-22) for (cmd.v, cmd.yaw_rate).
 
@@ -43,8 +43,8 @@ def _geometry_params() -> list[Quantity]:
 def params() -> list[Quantity]:
     return [
         Quantity("ctrl.period", 0.01, "s", "sample period of the controller", 1e-6, 1e3),
-        Quantity("ctrl.mode", 1, "1", "0 equal torques from a PI on the forward speed (the paper's run, spec "
-                 "section 10); 1 inverse kinematics (Eq. 13) with a PI loop per wheel rate", 0, 1, type="Integer"),
+        Quantity("ctrl.mode", 1, "1", "0 equal torques from a PI on the forward speed (the paper's "
+                 "run); 1 inverse kinematics (Eq. 13) with a PI loop per wheel rate", 0, 1, type="Integer"),
         Quantity("ctrl.tau_max", 4.0, "N.m", "torque limit of every wheel", 0.0, 1e3),
         Quantity("ctrl.ramp_time", 0.0, "s", "the commands ramp up linearly from 0 over this time after the start "
                  "(0: no ramp, the commands act at once)", 0.0, 1e4),
@@ -101,7 +101,7 @@ def outputs(dims: str) -> list[Quantity]:
 
 
 def _pi(error, integral, kp, ki, limit, period):
-    """u = Kp e + Ki (I + e T), clipped to +-limit; I integrates only while u is within the limit (spec 10)."""
+    """u = Kp e + Ki (I + e T), clipped to +-limit; I integrates only while u is within the limit (the paper's run)."""
     u = kp * error + ki * (integral + error * period)
     return ca.fmin(ca.fmax(u, -limit), limit), ca.if_else(ca.fabs(u) <= limit, integral + error * period, integral)
 

@@ -1,7 +1,7 @@
 """Forms a scene's equations: restricts the 3D rover to the scene's coordinates, adds terrain and contact, and
 returns the ModelSpec (CasADi functions under the contract's fixed names, plus the named interface).
 
-Restriction (spec section 8): every one of the 17 full coordinates is either one of the scene's coordinates or
+Restriction (docs/model.md, Scenes): every one of the 17 full coordinates is either one of the scene's coordinates or
 the constant 0, so q_full = P q with a constant 0/1 matrix P. Forming Kane's equations with the scene's speeds
 as generalized speeds is the projection P' M P, P' f of the 3D equations (tested in
 tests/test_model_dynamics.py::test_projection): the planar model is the 3D model, not a second hand-written one.
@@ -38,7 +38,7 @@ class ModelOptions:
     contact: str = "compliant"
     locked_wheels: bool = False   # wheels welded to their carriers (a parking brake): no spin coordinates
     heightmap: str = ""           # terrain "heightmap": the grid file (shipped as the FMU's resources/heightmap.txt)
-    drives: bool = False          # motor-and-gear model between tau[i] and the wheel (spec section 11)
+    drives: bool = False          # motor-and-gear model between tau[i] and the wheel (docs/model.md, Drives)
     stairs_steps: int = STAIRS_STEPS   # terrain "stairs": its number of steps
 
 
@@ -164,13 +164,13 @@ class CedraModel:
 
     @property
     def multi_contact(self) -> bool:
-        """Several contacts per wheel (spec section 6a): compliant contact on a curved analytic terrain. Planar
+        """Several contacts per wheel (docs/model.md, Several contacts per wheel): compliant contact on a curved analytic terrain. Planar
         terrain has one contact exactly; the heightmap's C search and rigid contact keep one (the deepest)."""
         return not self.rigid and not self.terrain.planar and self.opt.terrain != "heightmap"
 
     def _wheel_contact(self, wh) -> dict:
         """A wheel's contacts, their forces added to Kane's equations, and the wheel's totals in the per-wheel
-        outputs' meaning (spec section 6a item 4): the total force along the frame of n_eff = unit(sum F_n,k n_k)
+        outputs' meaning (docs/model.md, Several contacts per wheel, item 4): the total force along the frame of n_eff = unit(sum F_n,k n_k)
         (the deepest contact's normal while the wheel carries no force), the point the normal-force-weighted mean
         of the contact points (the deepest point while no force)."""
         p, i_ = self.p, self.i
@@ -317,7 +317,7 @@ class CedraModel:
         return o
 
     def _contact_outputs(self, k, parts):
-        """Per contact j = 1..3 of wheel k, ordered by beta (spec section 6a item 4): its normal force, slope and
+        """Per contact j = 1..3 of wheel k, ordered by beta (docs/model.md, Several contacts per wheel, item 4): its normal force, slope and
         point; 0 where the slot holds no maximum of g."""
         o = []
         for j, c in enumerate(parts, start=1):
@@ -348,7 +348,7 @@ class CedraModel:
                 (_out(f"wheel[{k}].xi", "rad", f"wheel {k} rotational slip angle xi_{k}: the center's direction of "
                       "travel in the contact plane from the wheel's heading"), xi)]
 
-    # ---------------- force-law switches (issue 13 item 3) ----------------
+    # ---------------- force-law switches ----------------
     @cached_property
     def switches(self):
         """The switching functions of the compliant model's force laws: (s, hold, hold_now, names). Each s_i is
@@ -361,8 +361,8 @@ class CedraModel:
         - joint stops: angle - limit for each stop, and the clip of the stop torque (it only pushes out):
           max(-k (a - hi) - d rate, k (hi - a)) above, min(-k (a - lo) - d rate, k (lo - a)) below, which again
           carry the clip's sign only beyond their stop;
-        - drives (spec section 11): the command against both edges of the motor envelope;
-        - several contacts per wheel (spec section 6a): the contact switch is the wheel's deepest penetration, and
+        - drives (docs/model.md, Drives): the command against both edges of the motor envelope;
+        - several contacts per wheel (docs/model.md, Several contacts per wheel): the contact switch is the wheel's deepest penetration, and
           each contact has its own clip. The contact search makes discrete choices (which samples start Newton),
           but the shared penetration keeps each wheel's force continuous through them: no switch there.
         Rigid scenes have none: their decision tree holds its modes over a step and locates touch-downs itself."""
@@ -450,7 +450,7 @@ class CedraModel:
                 "carriers")
 
     def check(self):
-        """cedra_check's code (spec.CHECK_REASONS): 1 inside the domain, -1 four-bar toggle, -2 tipped over.
+        """cedra_check's code (contract.CHECK_REASONS): 1 inside the domain, -1 four-bar toggle, -2 tipped over.
         Beyond 80 deg of pitch or roll the body would be lying on the ground, which the model does not know (and
         3D pitch reaches the ZYX Euler singularity at 90 deg): the FMU stops there loudly instead of grinding."""
         tilt = ca.fmax(ca.fabs(self.qf[IDX["pitch"]]), ca.fabs(self.qf[IDX["roll"]]))

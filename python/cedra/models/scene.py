@@ -8,19 +8,19 @@ before any code is generated.
     stairs_steps = 4                # terrain "stairs" only: its number of steps (1..50)
     heightmap = "hills.txt"         # terrain "heightmap" only: the grid file (format: fmu_src/heightmap.h), relative
                                     # to the scene file; shipped in the FMU as resources/heightmap.txt
-    contact = "compliant"           # compliant (rigid: not built yet)
+    contact = "compliant"           # compliant | rigid (the paper's decision tree, docs/rigid-contact.md)
     steering = false                # 3d only: steering servo on wheels 5 and 6
     locked_wheels = false           # wheels welded to their carriers (a parking brake; no torque inputs)
-    drives = false                  # motor-and-gear model between tau[i] and the wheel (spec section 11)
+    drives = false                  # motor-and-gear model between tau[i] and the wheel (docs/model.md, Drives)
     stop_time = 15.0                # s, the FMU's DefaultExperiment
     output_interval = 0.01          # s, the DefaultExperiment's step size
     [solver]                        # defaults of the FMU's solver.* parameters
-    method = "rodas4"               # rk4 | dopri5 | rodas4 | ros34pw2
+    method = "rodas4"               # rk4 | dopri5 | rodas4 | ros34pw2 | moreau (rigid scenes only)
     tol = 1e-6
     h_max = 0.01
     max_steps = 100000              # budget of one fmi2DoStep: attempted steps
     max_wall_time = 1.0             # budget of one fmi2DoStep: wall-clock seconds
-    [parameters]                    # start values of model parameters (spec section 4 names, ground_k, ...)
+    [parameters]                    # start values of model parameters (docs/model.md, Parameters; ground_k, ...)
     [inputs]                        # start values of inputs (tau[1], mu, terrain_h, ...)
     [start]                         # initial coordinates, e.g. x = 0.0 (the rest is settled by the FMU)
 """

@@ -1,1 +1,1 @@
-"""Work-precision and stability reports (issue 5)."""
+"""Work-precision and stability reports, the defaults report and the benchmark."""

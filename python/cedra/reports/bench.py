@@ -1,4 +1,4 @@
-"""Benchmark (issue 5): `python -m cedra bench [--build build] [--stop-time 10]`.
+"""Benchmark: `python -m cedra bench [--build build] [--stop-time 10]`.
 
 For bump2d and flat3d over stop_time simulated: the FMU's wall time, real-time factor, steps and rhs
 evaluations (scene default solver, communication step 0.01 s, from the Python-settled start state with the
@@ -9,7 +9,7 @@ same equations in the same run (scipy Radau with the exact Jacobian, rtol = atol
 Figures are printed, never asserted on.
 
 Then, when the optional dependency mujoco is importable (`pip install -e '.[bench]'`, ./build.sh does it), the
-MuJoCo side by side of issue 13 (`side_by_side`): the paper's 15 s run under the spec section 10 speed controller
+MuJoCo side by side (`side_by_side`): the paper's 15 s run under its speed controller (docs/model.md)
 on MuJoCo (cedra.reports.mujoco_model) on the bump as a height field (1 cm cells), on a plane and on the hills3d grid as
 a height field, at dt 1, 0.5 and 0.2 ms, and through the FMUs bump2d, bump3d, flat3d and hills3d, each at its scene
 defaults, at FMU_SETTINGS and at the REFERENCE settings: CPU time (time.process_time), real-time factor, x at 6 s,
@@ -140,7 +140,7 @@ def bench_contact(build, stop_time):
     return rows
 
 
-# ------------------------------------------------------------------ cost of one implicit step (issue 13 item 4)
+# ------------------------------------------------------------------ cost of one implicit step
 STEP_SCENES = ("bump2d", "bump3d")
 STEP_VARIANTS = {        # label: (extra C flags of the FMU build (fmu_src/model_glue.c), solver settings)
     "rodas4, dense 2n+1 solve": (["-DCEDRA_SCHUR_N2=0"], {}),
@@ -231,7 +231,7 @@ def step_cost(build: Path, stop_time=8.0, log=print) -> list[dict]:
 
 
 def print_step_cost(build: Path, stop_time=8.0) -> int:
-    print(f"\ncost of one implicit step (issue 13 item 4): the paper's run, {stop_time:g} s, tol 1e-6; per attempted "
+    print(f"\ncost of one implicit step: the paper's run, {stop_time:g} s, tol 1e-6; per attempted "
           "step (accepted + rejected); 1 LU factorization per attempt; CPU = time.process_time of the run (the "
           "master's calls included); RODAS4's linear algebra = 1 factorization + 6 stage solves at the settled "
           "state's Jacobian, timed alone")
@@ -300,7 +300,7 @@ def main(args):
     return max(rc, print_side_by_side(build, SIDE_STOP, quiet=getattr(args, "quiet", False)))
 
 
-# ------------------------------------------------------------------ MuJoCo side by side (issue 13)
+# ------------------------------------------------------------------ MuJoCo side by side
 SIDE_STOP = 15.0                     # the paper's run
 QUICK_STOP = 1.0
 X_AT = 6.0
@@ -313,7 +313,7 @@ MUJOCO_RUNS = {      # terrain label: (scene whose numbers and start it takes, M
 FMU_RUNS = ("bump2d", "bump3d", "flat3d", "hills3d")
 PAIRS = (("bump3d", "MuJoCo bump 1 ms"), ("hills3d", "MuJoCo hills 1 ms"), ("flat3d", "MuJoCo plane 1 ms"),
          ("bump2d", "MuJoCo bump 1 ms"))
-TARGETS = {"bump3d": 20.0, "hills3d": 10.0, "flat3d": 5.0}     # issue 13: MuJoCo 1 ms CPU / FMU CPU, converged
+TARGETS = {"bump3d": 20.0, "hills3d": 10.0, "flat3d": 5.0}     # the targets: MuJoCo 1 ms CPU / FMU CPU, converged
 
 
 def solver_setting(method: str, tol: float) -> tuple[str, dict]:
@@ -329,11 +329,11 @@ def solver_setting(method: str, tol: float) -> tuple[str, dict]:
 FMU_SETTINGS = dict(solver_setting(m, tol) for m, tol in
                     (("rodas4", 1e-4), ("ros34pw2", 1e-5), ("ros34pw2", 1e-4), ("ros34pw2", 1e-3)))
 REFERENCE = solver_setting("rodas4", 1e-9)
-CONVERGED = 1e-3         # peak Fn within this (relative) of the reference run: "forces converged" (issue 13)
+CONVERGED = 1e-3         # peak Fn within this (relative) of the reference run: "forces converged"
 
 
 def fmu_closed_loop(path, stop_time, settings: dict | None = None, label=""):
-    """The paper's run through the FMU (spec section 10, the main job's loop cedra.run.simulate.speed_loop), reading
+    """The paper's run through the FMU (docs/model.md; the main job's loop cedra.run.simulate.speed_loop), reading
     only what the table needs (body.vx for the controller, body.x, the six wheel[i].Fn) in one fmi2GetReal per
     sample. The loop calls the FMU's fmi2 functions with buffers made once, as a compiled master would (FMPy's
     checked wrappers build the arrays on every call: ~20 us per sample on this machine, a fifth of a flat3d
@@ -444,7 +444,7 @@ def print_side_by_side(build: Path, stop_time: float, dts=MUJOCO_DTS, quiet=Fals
               "installs it)")
         return 0
     import mujoco
-    print(f"\nMuJoCo side by side (issue 13): the paper's run, {stop_time:g} s, the spec section 10 speed "
+    print(f"\nMuJoCo side by side: the paper's run, {stop_time:g} s, the paper's speed "
           f"controller every 0.01 s; MuJoCo {mujoco.__version__} (cedra.reports.mujoco_model, Euler, settled "
           f"{mm.SETTLE:g} s untimed), FMUs at their scene defaults (\"FMU <scene>\"), at faster settings and at "
           f"{REFERENCE[0]} (the reference each row's peak Fn is compared with); CPU = time.process_time; peak Fn = "

@@ -1,5 +1,5 @@
-"""What the default settings guarantee (issue 13 item 6): every shipped scene run the way a user runs it - the
-scene's FMU with its default solver settings, driven by the main job's closed loop (spec section 10: PI speed
+"""What the default settings guarantee: every shipped scene run the way a user runs it - the
+scene's FMU with its default solver settings, driven by the main job's closed loop (docs/model.md: PI speed
 loop, equal torques) - against the same run at rodas4 tol 1e-9 (the tight run). Reported per scene: the peak
 normal force of each run, their relative difference, and the largest difference of any wheel's normal force at
 any communication point relative to the tight run's peak. The normal force is wheel[i].Fn, for rigid contact
@@ -13,7 +13,7 @@ communication step (impulse / step) carries.
 tolerance unless --tol) instead of the scene's defaults: what another setting would give, e.g. --method ros34pw2
 --tol 1e-4, the W-method's fast setting; --h-max: the largest step, the fixed step of rk4 and moreau.)
 
-writes <out>/defaults.md and prints the table. Criterion (issue 13): peak normal forces within 1e-3 relative.
+writes <out>/defaults.md and prints the table. Criterion: peak normal forces within 1e-3 relative.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from cedra.models.scene import load_shipped, shipped
-from cedra.reports.common import SOLVER_CODES, fmt, fmu_path, md_table
+from cedra.reports.common import SOLVER_CODES, announce, fmt, fmu_path, load_average, md_table, provenance
 from cedra.run.progress import Progress
 
 TIGHT = {"solver.method": SOLVER_CODES["rodas4"], "solver.tol": 1e-9, "solver.max_wall_time": 1e3}
@@ -98,12 +98,12 @@ def compare(name: str, build="build", tol: float | None = None, method: str | No
                float(np.abs(fn - fn_t).max()) / peak_t, force, c1 - c0, c2 - c1, True)
 
 
-def write(rows: list[Row], out: Path, cmd: str) -> Path:
+def write(rows: list[Row], out: Path, cmd: str, made_by: str = "") -> Path:
     out.mkdir(parents=True, exist_ok=True)
     table = [[r.scene, f"{r.t_end:g} s", r.setting, r.tight, r.force, fmt(r.peak, 5), fmt(r.peak_tight, 5),
               fmt(r.peak_rel), fmt(r.dev_rel), f"{r.cpu:.2f} / {r.cpu_tight:.2f}",
               ("yes" if r.peak_rel <= CRITERION else "NO") if r.ok else f"failed: {r.message[:80]}"] for r in rows]
-    md = ["# Default settings against a tight run", "",
+    md = ["# Default settings against a tight run", ""] + ([made_by, ""] if made_by else []) + [
           f"Command: `{cmd}`. Each scene's FMU, the main job's closed loop, default solver settings vs the tight "
           f"run (rodas4 tol 1e-9; rigid contact: moreau h_max 1e-5); normal forces at every communication point "
           f"(0.01 s).", "",
@@ -119,6 +119,8 @@ def main(args) -> int:
     build = getattr(args, "build", "build")
     quiet = getattr(args, "quiet", False)
     rows = []
+    load0, t0 = load_average(), time.perf_counter()
+    announce("report defaults", f"about {5 * len(names)} s on two cores ({len(names)} scenes, each run twice)", quiet)
     progress = Progress(len(names), "report defaults", unit="scenes", quiet=quiet)
     for k, name in enumerate(names):
         r = compare(name, build, getattr(args, "tol", None), getattr(args, "method", None),
@@ -134,5 +136,6 @@ def main(args) -> int:
         + (f" --tol {args.tol:g}" if getattr(args, "tol", None) else "") \
         + (f" --method {args.method}" if getattr(args, "method", None) else "") \
         + (f" --h-max {args.h_max:g}" if getattr(args, "h_max", None) else "")
-    print(f"wrote {write(rows, Path(getattr(args, 'out', 'out/report')), cmd)}")
+    made_by = provenance(cmd, time.perf_counter() - t0, load0)
+    print(f"wrote {write(rows, Path(getattr(args, 'out', 'out/report')), cmd, made_by)}")
     return 0 if all(r.ok and r.peak_rel <= CRITERION for r in rows) else 1

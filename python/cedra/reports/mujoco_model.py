@@ -1,7 +1,7 @@
-"""A MuJoCo model of CEDRA for side-by-side benchmarks (issue 13), generated from the project's own numbers.
+"""A MuJoCo model of CEDRA for side-by-side benchmarks, generated from the project's own numbers.
 
     xml = mjcf(load_shipped("bump3d"), terrain="hfield")     # MJCF text
-    r = run(load_shipped("bump3d"), terrain="hfield", dt=1e-3, stop_time=15.0)   # the spec section 10 run
+    r = run(load_shipped("bump3d"), terrain="hfield", dt=1e-3, stop_time=15.0)   # the paper's run
 
 Every number comes from the scene (`Scene.parameters`, `Scene.inputs`, heightmap file) over the defaults of
 `cedra.rover.parameters` and the input table; the four-bar's closure (theta5) is
@@ -9,19 +9,19 @@ Every number comes from the scene (`Scene.parameters`, `Scene.inputs`, heightmap
 an optional dependency (`pip install .[bench]`, which ./build.sh does); importing this module does not need it, the
 functions that build or run a model import it.
 
-The mechanism (spec sections 2-4): a free body (m_B, diag(I_Bxx, I_Byy, I_Bzz) at the frame origin = mass
+The mechanism (docs/model.md): a free body (m_B, diag(I_Bxx, I_Byy, I_Bzz) at the frame origin = mass
 center); two bogies on hinges about the body's y axis at P_L, P_R with wheels at +-bogie_half; the rear wheel 5
 on the body at (rear_x, 0, rear_z); the front four-bar as links: lower link A-C (hinge theta4 with the fork spring
 fork_k, fork_d about fork_theta4_ref), the coupler at C (hinge, carrying m_F with I_F at C + fork_mass_at e(theta5)
 and wheel 6 at C - fork_wheel e(theta5)), the upper link at B, the loop closed at D by an equality `connect`;
 wheels of radius R_w, mass m_w, spin inertia 0.5 m_w R_w^2, diametral 0.25 m_w R_w^2; six torque motors on the
 spin joints (gear 1, ctrlrange +-4 N.m, the controller's clip); friction mu on wheel-ground pairs only. Hinges
-turn about -y so that a positive joint angle is the spec's positive angle; all joint angles are 0 in the design
+turn about -y so that a positive joint angle is the model's positive angle; all joint angles are 0 in the design
 pose (MuJoCo's qpos0), so the fork spring's reference is 0 and the fork stops are offset by fork_theta4_ref.
 
 What differs from the FMU's model (so the two are not expected to agree beyond a few %):
   * contact: MuJoCo's soft constraints (default solref 0.02 s / damping ratio 1, solimp (0.9, 0.95, 0.001),
-    pyramidal friction cone with condim 3, no rolling/torsional friction effect) instead of the spec's
+    pyramidal friction cone with condim 3, no rolling/torsional friction effect) instead of the model's
     penalty ground (ground_k = 1e5 N/m, ground_d = 600 N.s/m, regularized Coulomb with v_eps). ground_k,
     ground_d and v_eps have no counterpart here; MuJoCo's contact stiffness is in acceleration units and
     cannot be set to N/m.
@@ -31,9 +31,9 @@ What differs from the FMU's model (so the two are not expected to agree beyond a
   * terrain: a height field is piecewise linear (two triangles per cell) through the grid heights; the FMU uses
     the analytic Gaussian (bump) or the natural bicubic spline through the same grid (heightmap). The bump's
     grid is the Gaussian sampled at 1 cm (default); hills3d uses its own 5 cm grid as is.
-  * the spec's massless links (bogies, fork links) get LINK_MASS = 0.01 kg each (MuJoCo needs mass on moving
+  * the model's massless links (bogies, fork links) get LINK_MASS = 0.01 kg each (MuJoCo needs mass on moving
     bodies): 0.04 kg on a 24 kg rover.
-  * joint stops are MuJoCo joint limits (soft constraints, default solreflimit), not the spec's clipped
+  * joint stops are MuJoCo joint limits (soft constraints, default solreflimit), not the model's clipped
     spring-damper stop_k = 500 N.m/rad, stop_d = 5 N.m.s/rad.
   * steering: no steering joints. Scenes with steering (flat3d) hold it at 0 with the servo; here it is welded.
   * the four-bar is closed by a soft equality constraint (drift ~1e-5 m), not in closed form; theta5 is a
@@ -60,7 +60,7 @@ from cedra.models.scene import Scene
 from cedra.run.simulate import SAMPLE, TAU_MAX, SpeedController
 
 WHEEL_HALF_WIDTH = 0.02     # m
-LINK_MASS = 0.01            # kg, on each of the spec's massless links
+LINK_MASS = 0.01            # kg, on each of the model's massless links
 SETTLE = 1.0                # s of zero torque before the timed run
 BUMP_CELL = 0.01            # m, the bump's height-field cells
 BUMP_X = (-1.0, 4.0)        # m, extent of the bump's height field
@@ -96,7 +96,7 @@ def numbers(scene: Scene) -> dict:
 
 
 def geometry(p: dict) -> dict:
-    """Design-pose points in the body frame (spec section 2), the four-bar closed by cedra.rover.mechanism.four_bar."""
+    """Design-pose points in the body frame (docs/model.md), the four-bar closed by cedra.rover.mechanism.four_bar."""
     th4 = p["fork_theta4_ref"]
     C, th5, closure = (np.array(ca.evalf(v), dtype=float) for v in four_bar(th4, p))   # constant expressions
     C, th5, closure = C.ravel(), th5.item(), closure.item()
@@ -125,7 +125,7 @@ class Grid:
 
 
 def bump_grid(p: dict, cell=BUMP_CELL, xlim=BUMP_X, ylim=BUMP_Y) -> Grid:
-    """The `bump` terrain (spec section 5: h exp(-((X - x0)/w)^2), constant in Y) sampled on a grid."""
+    """The `bump` terrain (docs/model.md, Terrain: h exp(-((X - x0)/w)^2), constant in Y) sampled on a grid."""
     nx = int(round((xlim[1] - xlim[0]) / cell)) + 1
     ny = int(round((ylim[1] - ylim[0]) / cell)) + 1
     X = xlim[0] + cell * np.arange(nx)
@@ -361,7 +361,7 @@ def settle(rover: Rover, seconds=SETTLE):
 
 def run(scene: Scene, terrain: str = "hfield", dt: float = 1e-3, stop_time: float = 15.0, cell: float = BUMP_CELL,
         label: str = "") -> Result:
-    """The paper's run (spec section 10) on MuJoCo: settle, then every SAMPLE s read body.vx, the speed controller
+    """The paper's run (docs/model.md) on MuJoCo: settle, then every SAMPLE s read body.vx, the speed controller
     (cedra.run.simulate.SpeedController) sets all six torques, MuJoCo steps SAMPLE/dt times (zero-order hold).
     The CPU time counts the controlled part only (the model compile and the settle are not timed)."""
     rover = Rover(scene, terrain, dt, cell)

@@ -1,4 +1,4 @@
-"""Work-precision report (issue 5): error against wall time for the FMU's embedded solvers and for the peers a
+"""Work-precision report: error against wall time for the FMU's embedded solvers and for the peers a
 user would pick instead (scipy solve_ivp, CasADi cvodes/idas) on the same equations, from the same start state,
 with the same piecewise-constant inputs.
 
@@ -19,7 +19,8 @@ import numpy as np
 
 from cedra.models.scene import load_shipped
 from cedra.run.progress import Progress
-from cedra.reports.common import (Problem, Run, Schedule, errors, fmt, fmu_path, grid, md_table, position_names,
+from cedra.reports.common import (Problem, Run, Schedule, announce, errors, fmt, fmu_path, grid, load_average,
+                                  md_table, position_names, provenance,
                                   fn_names, python_run_outputs, reference_outputs, run_casadi, run_fmu, run_scipy,
                                   torques)
 
@@ -76,16 +77,16 @@ class Config:
     implicit_rtols: list          # scipy Radau, BDF, LSODA
     explicit_rtols: list          # scipy RK45, DOP853
     idas_check: bool = True       # integrate the reference a second time with idas
-    # issue 13: rodas4 from an FMU built without switch location and with the dense 2n+1 stage solve (the same
-    # sources, C flags of fmu_src/plant.c), at these tolerances: the gain of items 3-4 at equal error
+    # rodas4 from an FMU built without switch location and with the dense 2n+1 stage solve (the same
+    # sources, C flags of fmu_src/plant.c), at these tolerances: their gain at equal error
     baseline_tols: list = field(default_factory=list)
-    # issue 13: ROS34PW2, the W-method that keeps its Jacobian (solver.method 3)
+    # ROS34PW2, the W-method that keeps its Jacobian (solver.method 3)
     ros34pw2_tols: list = field(default_factory=list)
 
 
 FULL = Config(
     scenes={"bump2d": dict(t_end=8.0, schedule=pi_schedule), "flat3d": dict(t_end=4.0, schedule=flat3d_schedule),
-            # issue 13: the sharp step (the switches located) and the paper's run in 3D
+            # the sharp step (the switches located) and the paper's run in 3D
             "step2d": dict(t_end=8.0, schedule=pi_schedule), "bump3d": dict(t_end=8.0, schedule=pi_schedule)},
     rodas4_tols=[1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10],
     dopri5_tols=[1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10],
@@ -286,10 +287,10 @@ def plot(res: SceneResult, out: Path):
     plt.close(fig)
 
 
-def write(results, out_dir: Path, command: str, wall_total: float):
+def write(results, out_dir: Path, command: str, wall_total: float, load_at_start: float = float("nan")):
     out_dir.mkdir(parents=True, exist_ok=True)
     md = ["# Work-precision report", "",
-          f"Produced by `{command}` in {wall_total:.0f} s on this machine; every figure below is measured in that run.",
+          provenance(command, wall_total, load_at_start) + " Every figure below is measured in that run.",
           "",
           "Each scene is integrated from the same settled start state (computed in Python: `cedra_guess` then Newton "
           "on `cedra_settle` to 1e-12; the FMU gets every coordinate as `start.<q>` with `start.settle = false`) with "
@@ -358,7 +359,7 @@ def write(results, out_dir: Path, command: str, wall_total: float):
                 w.writerow([r.get(k, "") for k in keys])
         base = [s for s in sp if s.get("baseline") is not None or s.get("rodas4") is not None]
         if any(r["method"] == BASELINE_LABEL for r in res.rows):
-            md += [f"Switch location and the reduced stage solve (issue 13): least wall time of FMU rodas4 and of "
+            md += [f"Switch location and the reduced stage solve: least wall time of FMU rodas4 and of "
                    f"`{BASELINE_LABEL}` (the same FMU sources built with {' '.join(BASELINE_FLAGS)}: no switch "
                    "location, the dense 2n+1 stage solve) reaching each position error.", ""]
             md += [md_table(["pos err <= [m]", "FMU rodas4 [s]", f"{BASELINE_LABEL} [s]", "baseline / FMU"],
@@ -387,7 +388,7 @@ def main(args):
     cfg = QUICK if getattr(args, "quick", False) else FULL
     out = Path(getattr(args, "out", "out/report"))
     build = getattr(args, "build", "build")
-    t0 = time.perf_counter()
+    t0, load0 = time.perf_counter(), load_average()
     only = getattr(args, "scene", None)
     unknown = set(only or []) - set(cfg.scenes)
     if unknown:
@@ -395,6 +396,10 @@ def main(args):
         return 2
     quiet = getattr(args, "quiet", False)
     names = [name for name in cfg.scenes if not only or name in only]
+    minutes = {"bump2d": 4, "flat3d": 2, "step2d": 11, "bump3d": 15}
+    announce("report precision", "a few seconds" if cfg is QUICK else
+             f"about {sum(minutes.get(n, 10) for n in names)} minutes on two cores "
+             "(--quick: a small subset in seconds; --scene NAME: one scene)", quiet)
     progress = Progress(len(names), "report precision", unit="scenes", quiet=quiet, after=0.0)
     results = []
     for name in names:                      # per-run lines on stdout, the bar on stderr; --quiet: neither
@@ -403,7 +408,7 @@ def main(args):
     progress.done()
     cmd = "python -m cedra report precision" + (" --quick" if cfg is QUICK else "") + \
         "".join(f" --scene {n}" for n in only or [])
-    summary = write(results, out, cmd, time.perf_counter() - t0)
+    summary = write(results, out, cmd, time.perf_counter() - t0, load0)
     print(f"wrote {out / 'precision.md'}")
     for s in summary:
         print(s)

@@ -1,4 +1,4 @@
-"""Stability campaign (issue 5): stiff and extreme cases through the FMU, every embedded solver.
+"""Stability campaign: stiff and extreme cases through the FMU, every embedded solver.
 
     python -m cedra report stability [--quick] [--build build] [--out out/report]
 
@@ -19,7 +19,8 @@ import numpy as np
 from cedra.contract import CHECK_REASONS
 from cedra.models.scene import load_shipped
 from cedra.run.progress import Progress
-from cedra.reports.common import Problem, Schedule, fmt, fmu_path, md_table, run_fmu, torques
+from cedra.reports.common import (Problem, Schedule, announce, fmt, fmu_path, load_average, md_table, provenance,
+                                  run_fmu, torques)
 
 ENERGY_REL_TOL = 1e-5      # allowed energy increase, relative to |E(0)|, in zero-torque dissipative cases
 WALL_BUDGET = 60.0         # s of wall time per run; a run still going is stopped and reported as such
@@ -119,7 +120,7 @@ class Result:
     @property
     def outside_domain(self):
         """Stopped loudly because the state left the model's domain (cedra_check: the rover tipped over, or the
-        fork passed its toggle): the model, not the solver, ends there (spec.CHECK_REASONS)."""
+        fork passed its toggle): the model, not the solver, ends there (contract.CHECK_REASONS)."""
         return self.status == "discard" and any(r in self.reason for r in DOMAIN_REASONS)
 
     @property
@@ -215,7 +216,7 @@ HEADER = ["case", "solver", "comm [s]", "t_end [s]", "finished", "reached [s]", 
           "NaN ever", "verdict"]
 
 
-def write(results, out_dir: Path, command, wall_total):
+def write(results, out_dir: Path, command, wall_total, load_at_start=float("nan")):
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []
     for r in results:
@@ -230,7 +231,7 @@ def write(results, out_dir: Path, command, wall_total):
                      if r.acceptable else "**FAIL**"])
     bad = [r for r in results if not r.acceptable]
     md = ["# Stability report", "",
-          f"Produced by `{command}` in {wall_total:.0f} s on this machine; every figure is measured in that run.", "",
+          provenance(command, wall_total, load_at_start) + " Every figure is measured in that run.", "",
           "Each case runs through the FMU (FMPy) from a start state computed in Python: the static equilibrium "
           "with the case's parameters (`cedra_guess`, then Newton on `cedra_settle`), raised by the drop height, "
           "with the initial forward speed and matching wheel spin for coasting cases; the FMU gets it as "
@@ -285,11 +286,13 @@ def main(args):
     quick = getattr(args, "quick", False)
     out = Path(getattr(args, "out", "out/report"))
     build = getattr(args, "build", "build")
-    t0 = time.perf_counter()
+    t0, load0 = time.perf_counter(), load_average()
     quiet = getattr(args, "quiet", False)
     results = []
     missing = set()
     todo = cases(quick)
+    announce("report stability", "about a minute on two cores" if quick else
+             "about 2-3 minutes on two cores (--quick: the hardest cases only, under a minute)", quiet)
     progress = Progress(len(todo) * len(SOLVERS), "report stability", unit="runs", quiet=quiet)
     for case in todo:
         if not fmu_path(build, case.scene).exists():
@@ -307,7 +310,7 @@ def main(args):
     if missing:
         print(f"no FMU for {sorted(missing)} in {build}: build first (python -m cedra build)", file=sys.stderr)
     cmd = "python -m cedra report stability" + (" --quick" if quick else "")
-    summary = write(results, out, cmd, time.perf_counter() - t0)
+    summary = write(results, out, cmd, time.perf_counter() - t0, load0)
     print(f"wrote {out / 'stability.md'}")
     for s in summary:
         print(s)

@@ -1,4 +1,4 @@
-"""Wheel kinematics of CEDRA (paper Eqs. 5-22, spec section 7): wheel Jacobians, the actuated inverse solution
+"""Wheel kinematics of CEDRA (paper Eqs. 5-22, docs/model.md): wheel Jacobians, the actuated inverse solution
 for the six wheel rates, and the geometric steering angles.
 
 Conventions (the paper's extraction lost its minus signs; each sign below is resolved by geometry):
@@ -10,7 +10,7 @@ Conventions (the paper's extraction lost its minus signs; each sign below is res
   (right-hand rule about the left-pointing axle): for a bogie wheel x_C = (cos psi, 0, -sin psi). This is the sign
   that reproduces the paper's visible minus signs in Eq. 13 (e.g. "- (l3 + l4 sin theta1) psidot_1").
 - Motion frame M_i = Rot_z(xi_i) Trans_z(-R_w) Trans_x(-R_w gamma_i) in C_i (the D-H row of the paper's Table 2):
-  the ground point under the wheel. It recedes along -x as the wheel rolls forward, because the spec makes
+  the ground point under the wheel. It recedes along -x as the wheel rolls forward, because the model makes
   positive gammadot drive the rover forward (so the paper's a = R_w gamma gets a minus sign here). xi_i is the
   rotational slip angle about the contact normal; the rolling direction is x_M = C_i Rot_z(xi) e_x.
 - No slip: M_i is fixed on the ground, so the twist of R (in R) is minus the twist of M_i relative to R:
@@ -65,7 +65,7 @@ def contact_frame(i, q, psi, p):
     if i <= 4:
         th, side = (th1, 1) if i <= 2 else (th2, -1)
         front = 1 if i in (1, 3) else -1
-        # bogie rotates about -y by theta (spec: e(theta) lifts the front wheel); undo it, then psi about the axle
+        # bogie rotates about -y by theta (e(theta) lifts the front wheel); undo it, then psi about the axle
         return (_move(p["bogie_x"], side * p["bogie_y"], p["bogie_z"]) @ _rot(rot_y(-th))
                 @ _move(front * p["bogie_half"]) @ _rot(rot_y(th + psi)))
     if i == 5:   # steering about R's z at the rear wheel's center

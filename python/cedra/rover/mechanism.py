@@ -1,4 +1,4 @@
-"""The CEDRA mechanism (spec sections 2-4): geometry by transform chains, masses, joint forces.
+"""The CEDRA mechanism (docs/model.md, Mechanism): geometry by transform chains, masses, joint forces.
 
 This module only *describes* the rover: given its generalized coordinates as expressions (the full 17 of
 the 3D rover, each written in terms of a scene's own reduced coordinates), it returns bodies, wheels and the
@@ -44,7 +44,7 @@ class RoverDescription:
 
 
 def four_bar(theta4, p):
-    """Closed-form closure of the front four-bar (spec section 2): (C, theta5, K/|d|)."""
+    """Closed-form closure of the front four-bar (docs/model.md, Mechanism): (C, theta5, K/|d|)."""
     A = ca.vertcat(p["fork_ax"], 0, p["fork_az"])
     B = ca.vertcat(p["fork_bx"], 0, p["fork_bz"])
     C = apply(translation(A) @ homogeneous(rot_y(-theta4), ca.DM.zeros(3)), ca.vertcat(p["fork_a"], 0, 0))
@@ -67,7 +67,7 @@ def stop_energy(angle, lo, hi, k):
 
 
 def drive_torque(tau_cmd, omega, stall, noload, viscous):
-    """The torque a drive applies to its wheel (spec section 11): the command clipped to the DC motor's linear
+    """The torque a drive applies to its wheel (docs/model.md, Drives): the command clipped to the DC motor's linear
     torque-speed envelope, seen at the wheel, minus the gear's viscous loss. omega is the wheel's spin rate relative
     to its carrier. Above the no-load speed the envelope's upper edge is negative, so no command can drive the wheel
     faster; the lower edge mirrors it for reverse."""

@@ -1,4 +1,4 @@
-"""The CEDRA rover's parameters (spec section 4) and the ground/servo parameters, with units. The single place
+"""The CEDRA rover's parameters (docs/model.md) and the ground/servo parameters, with units. The single place
 where the robot's numbers live; the symbolic model reads them as symbols (they are FMU parameters)."""
 from math import atan2, sqrt
 
@@ -54,13 +54,13 @@ RIGID = [
 ]
 
 # The steering servo is not in the paper's numbers: a stiff PD servo holding each steering angle at its command.
-# (Project choice, see README: about 300 rad/s natural frequency on the steered wheel, damping ratio ~0.9.)
+# (Project choice, docs/equations.md: about 300 rad/s natural frequency on the steered wheel, damping ratio ~0.9.)
 SERVO = [
     Q("steer_k", 50.0, "N.m/rad", "steering servo stiffness", min=0.0),
     Q("steer_d", 0.3, "N.m.s/rad", "steering servo damping", min=0.0),
 ]
 
-# Drives (spec section 11, scene option `drives`): a DC motor behind its gear, seen at the wheel. Its linear
+# Drives (docs/model.md, Drives; scene option `drives`): a DC motor behind its gear, seen at the wheel. Its linear
 # torque-speed envelope passes through the stall torque at rest and 0 at the no-load speed (0.65 m/s at the rim);
 # the gear adds a viscous loss. Both envelope numbers must be > 0 (the envelope divides by the no-load speed, and a
 # zero stall torque is no motor).

@@ -2,7 +2,7 @@
 
 A run records the body pose, the joint angles and the wheels' spin rates; the points to draw (body box corners,
 bogie pivots, the four-bar's A, B, C, D, wheel centers, axles and a spoke per wheel) follow from them with the
-chains of spec section 2, written here once as a CasADi function of those outputs and the parameters (the
+chains of docs/model.md, Mechanism, written here once as a CasADi function of those outputs and the parameters (the
 four-bar closed by `mechanism.four_bar`, rotations from `mechanics.transforms`) and evaluated for every frame at
 once. The wheel centers it computes are the FMU's own `wheel[i].c*` outputs (tests/test_watch.py checks that),
 so the drawing and the model cannot drift apart.
@@ -11,7 +11,7 @@ The spin angle gamma_i is not an FMU output (`wheel[i].psi` is the contact slope
 integral of the recorded spin rate `wheel[i].omega` (relative to the wheel's carrier), enough to show a wheel
 turning: a wheel spinning faster than pi per output interval aliases, as a filmed wheel does.
 
-The body is drawn as a box (the spec gives the body no shape): from the rear wheel's x to the upper four-bar pivot
+The body is drawn as a box (the model gives the body no shape): from the rear wheel's x to the upper four-bar pivot
 B, from the lower pivot A's height to 3 cm above B, 0.6 bogie_y to each side.
 """
 from __future__ import annotations

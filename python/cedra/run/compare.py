@@ -1,4 +1,4 @@
-"""Compliant versus rigid contact on the paper's bump (issue 4): both FMUs from the same start under the same
+"""Compliant versus rigid contact on the paper's bump: both FMUs from the same start under the same
 torque law (the main job's sampled speed controller, the paper's equal torques on all wheels). Replaying the
 compliant run's torques open-loop was tried first: the two runs drift apart, and at the bump the replayed
 braking rolled the rigid rover back, which compares torque schedules, not contact models. Writes

@@ -3,7 +3,7 @@ name to name, stepped with a fixed communication step h. Conventions:
 
   "plant-first" (Gauss-Seidel, the default): the plant steps [t, t + h] with the controller's held outputs, then
                 the controller gets the plant's outputs at t + h and takes its sample there, so the torque applied
-                over [t, t + h] is computed from y(t): the spec section 10 loop, no delay.
+                over [t, t + h] is computed from y(t): the paper's run's loop (docs/model.md), no delay.
   "jacobi"      both FMUs step from the values both had at t (the sample at t + h then uses y(t)): one step of
                 delay; the controller's sample 0 sees the plant's settled start.
   "fmpy-ssp"    what FMPy's SSP simulator does (fmpy.ssp.simulation): Jacobi, every connection starts at 0 (the

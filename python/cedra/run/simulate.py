@@ -1,4 +1,4 @@
-"""The main job (spec section 10): the paper's bump run through the FMU with a sampled PI speed controller."""
+"""The main job (docs/model.md): the paper's bump run through the FMU with a sampled PI speed controller."""
 from __future__ import annotations
 
 import csv
@@ -47,7 +47,7 @@ def recorded(fmu: RoverFMU) -> list[str]:
 
 def speed_loop(fmu: RoverFMU, stop_time, names: list[str], on_sample,
                controller: SpeedController | None = None) -> bool:
-    """The main job's closed loop on a started FMU (spec section 10): every SAMPLE s read `names` (body.vx among
+    """The main job's closed loop on a started FMU (docs/model.md): every SAMPLE s read `names` (body.vx among
     them), compute the torque, hand (k, t, y, tau) to on_sample, which may return True to stop here, then set all
     six tau[i] and step. The calls go through FastIO. Returns False if the FMU refused a call (fmu.status and
     fmu.messages say why), True when the run stopped at stop_time or where on_sample said."""

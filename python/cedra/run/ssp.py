@@ -1,4 +1,4 @@
-"""The drive system as an SSP package (issue 10): build/<system>.ssp = SystemStructure.ssd + the plant FMU + the
+"""The drive system as an SSP package: build/<system>.ssp = SystemStructure.ssd + the plant FMU + the
 drive controller FMU, connected name to name, with a scenario's parameter values bound to each component.
 
     write_ssp(path, plant_fmu, controller_fmu, plant_values, controller_values)

@@ -22,7 +22,7 @@ outputs to keep per run and where to write them:
 
 With both [grid] and [random], every grid point is combined with every draw. For a scene, the parameters are the
 scene FMU's inputs and parameters (mu, terrain_h, terrain_w, ground_k, start.yaw, ...) and the main job's
-controller settings (CONTROLLER: tau_max, v_ref); each run is the main job's run (spec section 10: a PI speed loop,
+controller settings (CONTROLLER: tau_max, v_ref); each run is the main job's run (docs/model.md: a PI speed loop,
 equal torques clipped at tau_max) on that scene, summarized as OUTPUTS. For a scenario script, the parameters and
 outputs are its own PARAMETERS and SUMMARY, and each run is its run(params=...). A bad sweep file fails before
 any run (and before any build) naming the file, the key and the reason.

@@ -1,4 +1,4 @@
-"""Runs a person can watch (issue 12 item 3): `animation.gif` (a 2D side view) and `view.html` (a 3D replay) of a
+"""Runs a person can watch: `animation.gif` (a 2D side view) and `view.html` (a 3D replay) of a
 run, from its recorded outputs.
 
     paths = watch(out_dir, names, rows, fmu_path)      # names: "time" + outputs, rows: one per sample
@@ -15,7 +15,7 @@ run, from its recorded outputs.
   play/pause, speed, follow camera, mouse orbit and zoom. A 2D run is shown at Y = 0 with its terrain extruded in Y.
   Page options after `#`: `follow=0` (fixed camera on the whole path), `play=0`, `t=<s>`, `speed=<x>`.
 
-Geometry comes from `cedra.rover.skeleton` (the chains of spec section 2, checked against the FMU's wheel centers),
+Geometry comes from `cedra.rover.skeleton` (the chains of docs/model.md, checked against the FMU's wheel centers),
 so a run records what WATCHED names and nothing is recomputed from a second copy of the kinematics.
 """
 from __future__ import annotations

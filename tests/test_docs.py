@@ -1,0 +1,170 @@
+"""The documentation: the site builds with warnings as errors (broken references, unreachable pages, unresolved
+cross-references of cedra's own all fail), its generated FMU reference equals every built FMU's
+modelDescription.xml and documentation/index.html, the README's quick start runs as written and prints what the
+README says, the versions agree, and the product carries no development history outside CHANGELOG.md."""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+from lxml import etree
+
+import cedra
+from cedra.fmu import reference
+
+REPO = Path(__file__).resolve().parents[1]
+BUILD = REPO / "build"
+README = REPO / "README.md"
+
+
+def _built_fmus() -> dict[str, Path]:
+    specs = {s.name: s for s in reference.shipped_specs()}
+    missing = [n for n in specs if not (BUILD / f"{n}.fmu").exists()]
+    if missing:
+        pytest.skip(f"not built (run ./build.sh): {', '.join(missing)}")
+    return {n: BUILD / f"{n}.fmu" for n in specs}
+
+
+def test_site_builds_without_warnings(tmp_path):
+    out = tmp_path / "html"
+    r = subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-n", "-q", "-b", "html",
+                        "-d", str(tmp_path / "doctrees"), str(REPO / "docs"), str(out)],
+                       capture_output=True, text=True, cwd=REPO, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "WARNING" not in r.stderr, r.stderr
+    for page in ("index", "getting-started", "fmu", "model", "equations", "scenes", "rigid-contact", "solvers",
+                 "reports", "scenarios", "benchmarks", "reliability", "developing", "api", "changelog",
+                 "reference/index", "reference/bump2d", "reference/drive3d"):
+        assert (out / f"{page}.html").exists(), page
+
+
+def _md_tables(text: str) -> list[dict]:
+    """Rows of the Markdown table whose header starts with '| name |'."""
+    lines = text.splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.startswith("| name |"))
+    head = [c.strip() for c in lines[start].strip("|").split("|")]
+    rows = []
+    for ln in lines[start + 2:]:
+        if not ln.startswith("|"):
+            break
+        cells = [c.strip() for c in re.split(r"(?<!\\)\|", ln.strip()[1:-1])]
+        rows.append(dict(zip(head, cells)))
+    return rows
+
+
+def _same_value(site: str, xml: str | None, type_: str) -> bool:
+    if xml is None:
+        return site == ""
+    if type_ == "Real":
+        return float(site) == float(xml)
+    return site == xml
+
+
+def test_reference_equals_every_built_fmu(tmp_path):
+    fmus = _built_fmus()
+    pages = tmp_path / "reference"
+    specs = reference.shipped_specs()
+    reference.write_site_reference(pages, specs)
+    by_name = {s.name: s for s in specs}
+    for name, path in fmus.items():
+        with zipfile.ZipFile(path) as z:
+            md = etree.fromstring(z.read("modelDescription.xml"))
+            doc = z.read("documentation/index.html").decode()
+        assert doc == reference.html_page(by_name[name]), f"{name}: documentation/index.html is not the generator's"
+        site = _md_tables((pages / f"{name}.md").read_text())
+        xml = md.findall("ModelVariables/ScalarVariable")
+        assert [r["name"].strip("`") for r in site] == [v.get("name") for v in xml], name
+        units = {u.get("name"): u for u in md.findall("UnitDefinitions/Unit")}
+        for r, v in zip(site, xml):
+            t = v[0]
+            what = f"{name}: {v.get('name')}"
+            assert r["type"] == t.tag, what
+            assert r["vr"] == v.get("valueReference"), what
+            assert r["causality"] == v.get("causality"), what
+            assert r["variability"] == v.get("variability"), what
+            assert r["unit"] == (t.get("unit") or ""), what
+            assert r["displayUnit"] == (t.get("displayUnit") or ""), what
+            assert r["quantity"] == (t.get("quantity") or ""), what
+            assert _same_value(r["start"], t.get("start"), t.tag), what
+            assert _same_value(r["min"].replace(" (excl.)", ""), t.get("min"), t.tag), what
+            assert _same_value(r["max"], t.get("max"), t.tag), what
+            if t.tag == "Real":
+                assert t.get("quantity"), f"{what}: a Real without quantity"
+            if t.get("displayUnit"):       # a display unit is defined for the variable's unit
+                names = [d.get("name") for d in units[t.get("unit")].findall("DisplayUnit")]
+                assert t.get("displayUnit") in names, what
+
+
+def test_angles_in_degrees_and_wheel_rates_in_rpm():
+    fmus = _built_fmus()
+    with zipfile.ZipFile(fmus["flat3d"]) as z:
+        md = etree.fromstring(z.read("modelDescription.xml"))
+    real = {v.get("name"): v[0] for v in md.findall("ModelVariables/ScalarVariable") if v[0].tag == "Real"}
+    assert real["body.pitch"].get("displayUnit") == "deg" and real["body.pitch"].get("quantity") == "Angle"
+    assert real["steer[1]"].get("displayUnit") == "deg"
+    assert real["wheel[1].omega"].get("displayUnit") == "rpm"
+    assert real["wheel[1].omega"].get("quantity") == "AngularVelocity"
+    assert real["wheel[1].Fn"].get("quantity") == "Force" and real["tau[1]"].get("quantity") == "Torque"
+    factors = {u.get("name"): {d.get("name"): float(d.get("factor")) for d in u.findall("DisplayUnit")}
+               for u in md.findall("UnitDefinitions/Unit")}
+    assert factors["rad"]["deg"] == pytest.approx(57.29577951308232, rel=1e-15)
+    assert factors["rad/s"]["rpm"] == pytest.approx(60 / (2 * 3.141592653589793), rel=1e-15)
+
+
+def test_versions_agree():
+    version = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"]
+    assert cedra.__version__ == version
+    assert f"## [{version}]" in (REPO / "CHANGELOG.md").read_text()
+    for name, path in _built_fmus().items():
+        with zipfile.ZipFile(path) as z:
+            md = etree.fromstring(z.read("modelDescription.xml"))
+        assert md.get("generationTool") == f"cedra {version}", name
+        assert md.get("version") == version, name
+
+
+def test_readme_is_short_and_its_quick_start_runs_as_written(tmp_path):
+    _built_fmus()
+    text = README.read_text()
+    assert len(text.splitlines()) <= 250
+    section = text[text.index("## Quick start"):]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    assert len(code.strip().splitlines()) <= 15
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert r.returncode == 0, r.stderr
+    claimed = re.search(r"It prints `(body\.x = \S+ m, wheel\[1\]\.Fn = \S+ N)`", section).group(1)
+    assert r.stdout.strip() == claimed
+
+
+# what must not appear outside CHANGELOG.md: issue numbers, numbered work periods, section numbers of a document
+# the product does not contain (the patterns are split so that this file does not match itself)
+HISTORY = re.compile("|".join([r"\biss" r"ue\s*#?\d", r"\(iss" r"ue", r"\bsess" r"ions?\s*\d",
+                               r"\bsect" r"ions?\s+\d+[a-z]?\b(?!\s*(?:of the FMI|of FMI))",
+                               r"\bspec" r"(?:ification)?\s+(?:§|sect|\d)"]), re.I)
+SCANNED = ["README.md", "docs", "python", "fmu_src", "tests", "examples", "tools", "modelDescription", "build.sh",
+           ".ci", "pyproject.toml", "requirements.txt"]
+SUFFIXES = {".md", ".py", ".c", ".h", ".toml", ".txt", ".sh", ".html", ".xml", ""}
+
+
+def test_no_development_history_outside_the_changelog():
+    found = []
+    for top in SCANNED:
+        root = REPO / top
+        files = [root] if root.is_file() else [p for p in root.rglob("*") if p.is_file()]
+        for p in files:
+            rel = p.relative_to(REPO)
+            if (p.suffix not in SUFFIXES or "egg-info" in str(rel) or "__pycache__" in str(rel)
+                    or rel.parts[:2] == ("docs", "reference") or rel.parts[:2] == ("tools", "cache")):
+                continue
+            try:
+                text = p.read_text()
+            except UnicodeDecodeError:
+                continue
+            for k, line in enumerate(text.splitlines(), 1):
+                if HISTORY.search(line):
+                    found.append(f"{rel}:{k}: {line.strip()[:120]}")
+    assert not found, "\n".join(found)
