@@ -66,8 +66,9 @@ def test_switching_functions_match_the_force_laws():
 
 
 def test_which_scenes_have_switches():
-    # curved terrain: per wheel its contact and a clip per contact slot (three); planar: one contact per wheel
-    for name, nsw, nh in (("bump2d", 32, 0), ("step2d", 32, 0), ("flat3d", 24, 0), ("bump2d_rigid", 0, 0),
+    # curved terrain: per wheel its contact and a clip per contact slot (three); planar: one contact per wheel;
+    # chassis (step2d): each of the 27 planar collision points' touchdown and clip
+    for name, nsw, nh in (("bump2d", 32, 0), ("step2d", 32 + 2 * 27, 0), ("flat3d", 24, 0), ("bump2d_rigid", 0, 0),
                           ("bump2d_drives", 44, 0)):
         spec = load_shipped(name).spec()
         assert (len(spec.switch_names), spec.n_hold) == (nsw, nh), name

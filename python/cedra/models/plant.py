@@ -40,6 +40,8 @@ class ModelOptions:
     heightmap: str = ""           # terrain "heightmap": the grid file (shipped as the FMU's resources/heightmap.txt)
     drives: bool = False          # motor-and-gear model between tau[i] and the wheel (docs/model.md, Drives)
     stairs_steps: int = STAIRS_STEPS   # terrain "stairs": its number of steps
+    chassis: bool = False         # the body's and links' collision points touch the terrain (docs/model.md,
+    #                               Chassis and links)
 
 
 def coordinate_map(opt: ModelOptions) -> dict[str, str | None]:
@@ -135,6 +137,7 @@ class CedraModel:
         self._searches = {}         # wheel index -> its contact search (cedra_rim_search's result)
         self._rim_search = None
         self.contacts = [self._wheel_contact(wh) for wh in self.rover.wheels]
+        self.chassis = self._chassis_contacts() if opt.chassis else []
         self.M, self.f = self.kane.equations()
         qd = self.rate(self.qf)
         # the work integral is the APPLIED torques' (with drives: after the clip and the gear loss), so
@@ -145,6 +148,8 @@ class CedraModel:
         if not self.rigid:
             self.potential += sum(ca.if_else(part["geo"].depth > 0, 0.5 * p["ground_k"] * part["geo"].depth ** 2, 0)
                                   for c in self.contacts for part in c["parts"])
+            self.potential += sum(c["weight"] * ca.if_else(c["depth"] > 0, 0.5 * p["ground_k"] * c["depth"] ** 2, 0)
+                                  for c in self.chassis)
 
     def _freeze(self, expr):
         """A free symbol standing for expr until resolve() (see contact.rim_contacts: derivatives do not go
@@ -161,6 +166,33 @@ class CedraModel:
 
     def rate(self, expr):
         return ca.jtimes(expr, self.q, self.u)
+
+    def _chassis_contacts(self) -> list[dict]:
+        """The collision points of the body and links (docs/model.md, Chassis and links): each point below the
+        terrain gets the compliant law with delta = g n_Z, the terrain's normal under it and the point's own
+        velocity; in 2D one point stands for its twins across the rover (planar_weight)."""
+        if self.rigid:
+            raise ValueError("chassis contact is compliant only (rigid scenes: not built)")
+        p, i_ = self.p, self.i
+        planar = self.opt.dims == "2d"
+        out = []
+        for pt in self.rover.collision_points:
+            weight = pt.planar_weight if planar else 1
+            if weight == 0:
+                continue
+            pos = pt.position
+            h, grad, _ = self.terrain.local(pos[0], pos[1])
+            n = ca.vertcat(-grad[0], -grad[1], 1)
+            n = n / ca.norm_2(n)
+            depth = (h - pos[2]) * n[2]
+            v = self.rate(pos)
+            v_n = ca.dot(v, n)
+            v_t = v - v_n * n
+            Fn = ca.if_else(depth > 0, ca.fmax(0, p["ground_k"] * depth - p["ground_d"] * v_n), 0)
+            Ft = -i_["mu"] * Fn * v_t / ca.sqrt(ca.dot(v_t, v_t) + p["v_eps"] ** 2)
+            self.kane.add_point_force(v, weight * (Fn * n + Ft))
+            out.append(dict(link=pt.link, weight=weight, depth=depth, Fn=Fn, v_n=v_n))
+        return out
 
     @property
     def multi_contact(self) -> bool:
@@ -314,6 +346,12 @@ class CedraModel:
                     o.append((_out(f"wheel[{k}].{comp}_mean", "N",
                                    f"wheel {k} {what} contact force averaged over the last communication step "
                                    "(impulse / step, impacts included; at the start: the force there)"), 0))
+        if self.chassis:
+            o.append((_out("chassis.clearance", "m", "the body's and links' smallest height above the terrain over "
+                           "their collision points (-g n_Z; negative while touching)"),
+                      -ca.mmax(ca.vertcat(*[c["depth"] for c in self.chassis]))))
+            o.append((_out("chassis.Fn", "N", "the sum of the normal forces on the body's and links' collision "
+                           "points"), sum(c["weight"] * c["Fn"] for c in self.chassis)))
         return o
 
     def _contact_outputs(self, k, parts):
@@ -362,9 +400,11 @@ class CedraModel:
           max(-k (a - hi) - d rate, k (hi - a)) above, min(-k (a - lo) - d rate, k (lo - a)) below, which again
           carry the clip's sign only beyond their stop;
         - drives (docs/model.md, Drives): the command against both edges of the motor envelope;
-        - several contacts per wheel (docs/model.md, Several contacts per wheel): the contact switch is the wheel's deepest penetration, and
-          each contact has its own clip. The contact search makes discrete choices (which samples start Newton),
-          but the shared penetration keeps each wheel's force continuous through them: no switch there.
+        - chassis and links: each collision point's penetration (its touchdown; docs/model.md, Chassis and links);
+        - several contacts per wheel (docs/model.md, Several contacts per wheel): the contact switch is the
+          wheel's deepest penetration, and each contact has its own clip. The contact search makes discrete
+          choices (which samples start Newton), but the shared penetration keeps each wheel's force continuous
+          through them: no switch there.
         Rigid scenes have none: their decision tree holds its modes over a step and locates touch-downs itself."""
         if self.rigid:
             return [], [], [], []
@@ -380,6 +420,10 @@ class CedraModel:
                 s.append(ca.fmin(p["ground_k"] * d - p["ground_d"] * part["v_n"], p["ground_k"] * d))
                 names.append(f"wheel[{k}] contact[{j}] normal-force clip" if several
                              else f"wheel[{k}] normal-force clip")
+        for j, c in enumerate(self.chassis, start=1):        # a collision point's touchdown and its clip
+            d = c["depth"]
+            s += [d, ca.fmin(p["ground_k"] * d - p["ground_d"] * c["v_n"], p["ground_k"] * d)]
+            names += [f"chassis point {j} ({c['link']}) contact", f"chassis point {j} ({c['link']}) normal-force clip"]
         stops = [("theta1", -p["bogie_stop"], p["bogie_stop"]), ("theta2", -p["bogie_stop"], p["bogie_stop"]),
                  ("theta4", p["fork_stop_lo"], p["fork_stop_hi"])]
         for name, lo, hi in stops:

@@ -12,6 +12,8 @@ before any code is generated.
     steering = false                # 3d only: steering servo on wheels 5 and 6
     locked_wheels = false           # wheels welded to their carriers (a parking brake; no torque inputs)
     drives = false                  # motor-and-gear model between tau[i] and the wheel (docs/model.md, Drives)
+    chassis = false                 # the body's and links' collision points touch the terrain (compliant contact;
+                                    # docs/model.md, Chassis and links)
     stop_time = 15.0                # s, the FMU's DefaultExperiment
     output_interval = 0.01          # s, the DefaultExperiment's step size
     [solver]                        # defaults of the FMU's solver.* parameters
@@ -40,7 +42,7 @@ from cedra.mechanics.terrain import KINDS, STAIRS_STEPS
 
 SOLVERS = {name: k for k, name in enumerate(SOLVER_METHODS)}
 TOP_KEYS = {"name", "description", "dims", "terrain", "heightmap", "stairs_steps", "contact", "steering", "locked_wheels",
-            "drives", "stop_time", "output_interval",
+            "drives", "chassis", "stop_time", "output_interval",
             "solver", "parameters", "inputs", "start"}
 
 
@@ -164,6 +166,11 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
         _fail(path, "drives", f"expected true or false, got {drives!r}")
     if drives and locked:
         _fail(path, "drives", "locked wheels have no motors (locked_wheels = true)")
+    chassis = data.get("chassis", False)
+    if not isinstance(chassis, bool):
+        _fail(path, "chassis", f"expected true or false, got {chassis!r}")
+    if chassis and contact == "rigid":
+        _fail(path, "chassis", "chassis contact is built for compliant ground only (contact = \"compliant\")")
     stop_time = _number(path, "stop_time", data.get("stop_time", 10.0), positive=True)
     interval = _number(path, "output_interval", data.get("output_interval", 0.01), positive=True)
     if interval > stop_time:
@@ -194,7 +201,7 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     if solver["method"] == "moreau" and contact != "rigid":
         _fail(path, "solver.method", "moreau is the rigid contact's own time stepping (contact = \"rigid\")")
     opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked,
-                       heightmap=heightmap_file, drives=drives, stairs_steps=steps)
+                       heightmap=heightmap_file, drives=drives, stairs_steps=steps, chassis=chassis)
     scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path))
     for section, table in (("parameters", param_table(opt)), ("inputs", input_table(opt))):
         known = {q.name: q for q in table}

@@ -32,6 +32,25 @@ class Wheel:
 
 
 @dataclass
+class CollisionPoint:
+    """A point of the body or a link that can touch the terrain (docs/model.md, Chassis and links); no mass.
+    position: world, an expression of the coordinates (a material point of its link, so its velocity is the
+    position's time derivative). planar_weight: in 2D, where the terrain is constant in Y, points that differ
+    only in y act as one: the point on the center line (the left bogie's) carries the count of its twins (3 across
+    the body, 2 bogies), the others 0."""
+    link: str
+    position: ca.SX
+    planar_weight: int
+
+
+# the body's box in frame R: its floor and its front and rear faces (docs/model.md, Chassis and links)
+BODY_BOX_X = [-0.30 + 0.04 * k for k in range(13)]      # -0.30 .. 0.18
+BODY_BOX_Y = [-0.12, 0.0, 0.12]
+BODY_FLOOR_Z = -0.06
+BODY_FACE_Z = [-0.02, 0.03, 0.08]
+
+
+@dataclass
 class RoverDescription:
     bodies: list[Body]
     wheels: list[Wheel]
@@ -41,6 +60,7 @@ class RoverDescription:
     closure: ca.SX              # K/|d| of the four-bar: |closure| < 1 where it can be assembled
     body_omega: ca.SX
     body_velocity: ca.SX
+    collision_points: list[CollisionPoint]
 
 
 def four_bar(theta4, p):
@@ -121,6 +141,22 @@ def describe(qf, rate, p, tau, steer_cmd):
     w6 = w_coupler + s_world * d["theta6"] + axle6 * d["gamma6"]
     fork_mass = world(T_coupler, ca.vertcat(p["fork_mass_at"], 0, 0))
 
+    # collision points: the body's box (floor, front and rear faces), each bogie's segment between its wheel centers
+    # at 1/4, 1/2, 3/4, the fork's joints C and D and the midpoints of its three links
+    n_y = len(BODY_BOX_Y)
+    points = [CollisionPoint("body", world(ca.SX.eye(4), ca.vertcat(bx, by, BODY_FLOOR_Z)), n_y if by == 0 else 0)
+              for bx in BODY_BOX_X for by in BODY_BOX_Y]
+    points += [CollisionPoint("body", world(ca.SX.eye(4), ca.vertcat(bx, by, bz)), n_y if by == 0 else 0)
+               for bx in (BODY_BOX_X[0], BODY_BOX_X[-1]) for bz in BODY_FACE_Z for by in BODY_BOX_Y]
+    for side, (front, rear) in ((+1, (0, 1)), (-1, (2, 3))):
+        cf, cr = bogie_wheels[front][1], bogie_wheels[rear][1]
+        points += [CollisionPoint("bogie", cr + f * (cf - cr), 2 if side > 0 else 0) for f in (0.25, 0.5, 0.75)]
+    A = ca.vertcat(p["fork_ax"], 0, p["fork_az"])
+    B = ca.vertcat(p["fork_bx"], 0, p["fork_bz"])
+    D = C + p["fork_c"] * e_xz(theta5)
+    points += [CollisionPoint("fork", world(ca.SX.eye(4), pt), 1)
+               for pt in (C, D, 0.5 * (A + C), 0.5 * (B + D), 0.5 * (C + D))]
+
     mw, Rw = p["m_w"], p["R_w"]
     I_wheel = ca.diag(ca.vertcat(0.25, 0.5, 0.25)) * mw * Rw ** 2   # axle = the frame's y axis
     bodies = [Body("body", p["m_B"], ca.vertcat(x, y, z), w_body,
@@ -151,4 +187,4 @@ def describe(qf, rate, p, tau, steer_cmd):
         for name, cmd in (("theta3", steer_cmd[0]), ("theta6", steer_cmd[1])):
             Q[IDX[name]] = -p["steer_k"] * (qf[IDX[name]] - cmd) - p["steer_d"] * d[name]
             V += 0.5 * p["steer_k"] * (qf[IDX[name]] - cmd) ** 2
-    return RoverDescription(bodies, wheels, Q, V, theta5, closure, w_body, rate(ca.vertcat(x, y, z)))
+    return RoverDescription(bodies, wheels, Q, V, theta5, closure, w_body, rate(ca.vertcat(x, y, z)), points)
