@@ -1,7 +1,8 @@
-"""An exhaustive reference for the contacts of a wheel (docs/model.md, Several contacts per wheel, item 5), independent of
-cedra.mechanics.contact's search: g sampled every 0.01 degree of the lower half rim, every maximum and saddle polished
-by Newton on g' = 0 to machine precision (derivatives by central differences of g, no symbolic chain), and the
-penetration shared by the spec's rule, written as its own recursion over any number of maxima."""
+"""An exhaustive reference for the contacts of a wheel (docs/model.md, Several contacts per wheel, item 5),
+independent of cedra.mechanics.contact's search: g sampled every 0.01 degree of the lower half rim, every maximum
+and saddle polished by Newton on g' = 0 to machine precision (derivatives by central differences of g, no symbolic
+chain), and the penetration shared by the rule of docs/model.md (Several contacts per wheel, item 2), written as
+its own recursion over any number of maxima."""
 from __future__ import annotations
 
 import numpy as np

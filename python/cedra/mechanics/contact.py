@@ -106,13 +106,13 @@ def _ratio(a, b):
 
 def shared_depths(g, s):
     """The vertical penetrations of up to three maxima g = [g1, g2, g3] ordered by beta, joined by the saddles
-    s = [s12, s23] (the smallest g between neighbours), present = len(g). docs/model.md, Several contacts per wheel, item 2: maxima on separate
-    arcs (saddle <= 0) are separate; two maxima joined by a saddle s > 0 share the penetration below it in
-    proportion to their rises above it; three on one arc split at the lowest saddle first (each side in proportion
-    to its highest rise), then within the side the same way. Written as one recursion: a group of maxima on a
-    base (a saddle height, 0 at the top level) with a pool (the penetration below the base that the group
-    received): a single maximum gets (g - base) + pool; a group splits at its lowest saddle s (clamped at 0),
-    the pool grows by s - base, and each side gets its part and recurses with base s."""
+    s = [s12, s23] (the smallest g between neighbours), present = len(g). docs/model.md, Several contacts per wheel,
+    item 2: maxima on separate arcs (saddle <= 0) are separate; two maxima joined by a saddle s > 0 share the
+    penetration below it in proportion to their rises above it; three on one arc split at the lowest saddle first (each
+    side in proportion to its highest rise), then within the side the same way. Written as one recursion: a group of
+    maxima on a base (a saddle height, 0 at the top level) with a pool (the penetration below the base that the group
+    received): a single maximum gets (g - base) + pool; a group splits at its lowest saddle s (clamped at 0), the pool
+    grows by s - base, and each side gets its part and recurses with base s."""
     def group(idx, base, pool):
         if len(idx) == 1:
             return [g[idx[0]] - base + pool]
@@ -158,10 +158,10 @@ def terrain_functions(terrain: Terrain) -> dict[str, ca.Function]:
 
 
 def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None):
-    """The contacts of a wheel (docs/model.md, Several contacts per wheel): the local maxima of g on the lower half rim, up to MAX_CONTACTS
-    ordered by beta, with the saddles between neighbours and their shared penetrations. Returns the contact slots
-    (always MAX_CONTACTS; a slot without a maximum has depth ABSENT_DEPTH) and their presence flags. Planar terrain
-    and the heightmap: one contact (contact_geometry).
+    """The contacts of a wheel (docs/model.md, Several contacts per wheel): the local maxima of g on the lower half
+    rim, up to MAX_CONTACTS ordered by beta, with the saddles between neighbours and their shared penetrations.
+    Returns the contact slots (always MAX_CONTACTS; a slot without a maximum has depth ABSENT_DEPTH) and their
+    presence flags. Planar terrain and the heightmap: one contact (contact_geometry).
 
     search: the result of the C search (cedra.mechanics.rim: r[8] = beta of maxima 1..3, of saddles 1..2,
     presence 1..3) for this wheel. freeze(expr) -> symbol: the caller stands a free symbol in for expr and puts
@@ -215,9 +215,7 @@ def compliant_force(geo: ContactGeometry, v_point, ground_k, ground_d, mu, v_eps
 
 def rim_samples(center, axle, terrain: Terrain, radius) -> list:
     """g(beta_k) = f(p_X, p_Y) - p_Z at the rim search's 13 samples beta_k = k pi/12, k = -6..6 (the same frame
-    as rim_point). The switching function of the best sample (plant.py, CedraModel.switches) is built from them: when a
-    sample that is not a neighbour of the best one overtakes it, the contact point jumps (a wheel at a step's
-    edge: from the ground to the face)."""
+    as rim_point), as symbolic expressions: the samples the C search (fmu_src/rim.c) gets from cedra_rim_samples."""
     n0 = terrain.normal(center[0], center[1])
     t = n0 - ca.dot(n0, axle) * axle
     r1 = -unit(t)
