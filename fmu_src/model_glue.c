@@ -50,6 +50,7 @@
 /* a switch is located when the step that crosses it is at most this long (s; more where time cannot resolve it) */
 #define LOC_TOL 1e-10
 #define MAX_LOCATE 4        /* locations of one switch per call (fmi2DoStep) before it is left to the error control */
+#define MAX_MISS 2          /* cuts of one switch per call that end no nearer to it before it is left likewise */
 #define LOG_LOCATED 8       /* located switches kept for the step's log */
 
 #if CEDRA_RIGID
@@ -87,6 +88,9 @@ struct model_ws {
     int swn_valid;
     long n_located;                     /* switches located since the last model_take_located */
     int sw_count[DIM(NSW)];             /* times each switch was located since then */
+    int sw_miss[DIM(NSW)];              /* cuts aimed at each switch that ended no nearer to it, since then */
+    int aim;                            /* 1 + the switch the last step was cut at (0: none) ... */
+    double aim_s, aim_s1, aim_t;        /* ... its s at that step's start and end, and the cut's end */
     int loc_which[LOG_LOCATED];
     double loc_t0[LOG_LOCATED], loc_t1[LOG_LOCATED];
     /* factors of the mass matrix at dyn_x: Cholesky in CEDRA_M_ORDER if m_chol (linalg_chol_factor_perm), else LU */
@@ -415,8 +419,9 @@ double model_locate_step(void *ctx, double t, const double *x, double t_new, con
     model_ws *ws = (model_ws *)ctx;
     const double loc_tol = fmax(LOC_TOL, 10 * solver_time_resolution(t_new));
     activate(ws);
+    int retry = 0;
     if (ws->sw_valid && ws->sw_t == t && memcmp(ws->sw_x, x, sizeof ws->sw_x) == 0) {
-        /* the same start as the last call (a retried step) */
+        retry = 1;          /* the same start as the last call (a retried step) */
     } else if (ws->swn_valid && ws->swn_t == t && memcmp(ws->swn_x, x, sizeof ws->swn_x) == 0) {
         /* the end of the last step, evaluated with its own choices: hold stays, s0 is that evaluation */
         memcpy(ws->sw0, ws->swn, sizeof ws->sw0);
@@ -432,6 +437,16 @@ double model_locate_step(void *ctx, double t, const double *x, double t_new, con
         memcpy(ws->sw_x, x, sizeof ws->sw_x);
         ws->sw_valid = 1;
     }
+    if (ws->aim > 0 && !retry && fabs(t - ws->aim_t) <= 1e-9 * fmax(1.0, fabs(t))) {
+        /* The last step was cut short of a switch, aimed just before it, and this step starts where that one
+         * ended. Where s is close to linear over a step it is now far nearer to 0. An s that has not come halfway
+         * (a switch function that changed its branch, say a contact slot that now holds another maximum, or one
+         * that bends sharply within the step) cannot be reached by interpolation: each cut would end short of it
+         * again and the call would creep in steps of the cut's length. */
+        const int i = ws->aim - 1;
+        if ((ws->sw0[i] > 0) == (ws->aim_s > 0) && fabs(ws->sw0[i]) > 0.5 * fabs(ws->aim_s)) ws->sw_miss[i]++;
+    }
+    if (!retry) ws->aim = 0;
     if (eval_switch(ws, x_new, ws->hold, ws->sw1, ws->hold_tmp)) return -1;
     ws->swn_valid = NH == 0 || memcmp(ws->hold_tmp, ws->hold, sizeof ws->hold) == 0;
     if (ws->swn_valid) {
@@ -441,11 +456,20 @@ double model_locate_step(void *ctx, double t, const double *x, double t_new, con
     }
     /* A switch crossed back and forth (a force law sliding along its switch, e.g. a wheel that barely touches)
      * would be located again and again: after MAX_LOCATE locations in one call it is left to the error control
-     * for the rest of the call. */
+     * for the rest of the call; so is one that MAX_MISS cuts did not bring nearer (above). */
     for (int i = 0; i < NSW; i++)
-        if (ws->sw_count[i] >= MAX_LOCATE) ws->sw1[i] = ws->sw0[i];
+        if (ws->sw_count[i] >= MAX_LOCATE || ws->sw_miss[i] >= MAX_MISS) ws->sw1[i] = ws->sw0[i];
     int which;
     double len = solver_locate_switches(NSW, ws->sw0, ws->sw1, t, t_new, loc_tol, &which);
+    /* a retry of a step cut at this switch whose end is no nearer to it: the interpolation does not converge (s
+     * jumps inside the step): left to the error control like a switch that the cuts did not bring nearer */
+    while (retry && which >= 0 && len >= 0 && len < t_new - t && ws->aim == which + 1 &&
+           (ws->sw1[which] > 0) == (ws->aim_s1 > 0) && fabs(ws->sw1[which]) > 0.5 * fabs(ws->aim_s1)) {
+        ws->sw_miss[which] = MAX_MISS;
+        ws->sw1[which] = ws->sw0[which];
+        ws->aim = 0;
+        len = solver_locate_switches(NSW, ws->sw0, ws->sw1, t, t_new, loc_tol, &which);
+    }
     if (which >= 0 && len >= t_new - t) {      /* accepted with the switch inside: located */
         int k = (int)(ws->n_located % LOG_LOCATED);
         ws->loc_which[k] = which;
@@ -453,6 +477,11 @@ double model_locate_step(void *ctx, double t, const double *x, double t_new, con
         ws->loc_t1[k] = t_new;
         ws->n_located++;
         ws->sw_count[which]++;
+    } else if (which >= 0 && len >= 0 && len < t_new - t) {   /* a cut: the step is retried ending before it */
+        ws->aim = which + 1;
+        ws->aim_s = ws->sw0[which];
+        ws->aim_s1 = ws->sw1[which];
+        ws->aim_t = t + len;
     }
     return len;
 #else
@@ -468,6 +497,10 @@ long model_take_located(model_ws *ws, int k, const char **name, double *t0, doub
     if (k < 0) {
         ws->n_located = 0;
         memset(ws->sw_count, 0, sizeof ws->sw_count);
+#if NSW > 0
+        memset(ws->sw_miss, 0, sizeof ws->sw_miss);
+        ws->aim = 0;
+#endif
         return n;
     }
 #if NSW > 0

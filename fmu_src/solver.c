@@ -790,8 +790,12 @@ double solver_locate_switches(int nsw, const double *s0, const double *s1, doubl
     /* (t + loc_tol) - t is loc_tol only up to rounding in t: a step of loc_tol is "at most loc_tol" */
     if (len <= loc_tol * (1 + 1e-3)) return HUGE_VAL;
     /* More than loc_tol ahead: end a quarter of loc_tol short of the estimate (the next step then starts within
-     * loc_tol of the switch, where the estimate is accurate); within loc_tol: a step of loc_tol crosses it. */
-    return first > loc_tol ? first - 0.25 * loc_tol : loc_tol;
+     * loc_tol of the switch, where the estimate is accurate); within loc_tol: a step of loc_tol crosses it. A cut
+     * that would shorten the step by no more than loc_tol is none: the step already ends within loc_tol of the
+     * crossing (retrying it a hair shorter would find the estimate at its end again, and creep: an s that jumps,
+     * such as a contact slot that begins to hold a newborn maximum, always puts the estimate there). */
+    const double cut = first > loc_tol ? first - 0.25 * loc_tol : loc_tol;
+    return len - cut <= loc_tol ? len : cut;
 }
 
 double solver_time_resolution(double t) { return 1e-12 * fmax(1.0, fabs(t)); }

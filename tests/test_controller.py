@@ -143,3 +143,23 @@ def test_controller_geometry_is_the_plants():
     pars = {p.name: p.start for p in spec.params}
     for n in ("R_w", "bogie_x", "bogie_y", "rear_x", "fork_wheel"):
         assert pars[n] == DEFAULTS[n]
+
+
+def test_steering_commands_stay_within_the_servos_range():
+    """A turn center close beside a steered wheel (a slow forward speed with a fast yaw rate) asks for nearly
+    90 degrees; the command is the plant's steering range at most, so a plant never refuses it."""
+    from cedra.models.controller import STATES, inputs, outputs, params, sample_function
+    from cedra.rover.parameters import STEER_LIMIT
+    f = sample_function("3d")
+    ins, outs = [q.name for q in inputs("3d")], [q.name for q in outputs("3d")]
+    par = [p.start for p in params()]
+    steer = []
+    for v, w in ((0.01, 2.0), (0.01, -2.0), (0.2, 0.1)):
+        inp = np.array([{"cmd.v": v, "cmd.yaw_rate": w}.get(n, 0.0) for n in ins])
+        inp[ins.index("fork.theta4")] = DEFAULTS["fork_theta4_ref"]
+        y = np.array(f(inp, par, np.zeros(len(STATES)))[0]).ravel()
+        steer.append([y[outs.index("steer[1]")], y[outs.index("steer[2]")]])
+    steer = np.array(steer)
+    assert np.all(np.abs(steer) <= STEER_LIMIT)
+    assert np.max(np.abs(steer[:2])) == STEER_LIMIT                   # the clip acted
+    assert 0 < np.max(np.abs(steer[2])) < 0.5                         # a gentle turn is untouched

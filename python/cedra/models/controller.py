@@ -26,7 +26,7 @@ from __future__ import annotations
 import casadi as ca
 
 from cedra.rover.kinematics import KIN_PARAMS, drive_expressions, drive_symbols
-from cedra.rover.parameters import DEFAULTS, ROVER
+from cedra.rover.parameters import DEFAULTS, ROVER, STEER_LIMIT
 from cedra.contract import ModelSpec, Quantity
 
 WHEELS = range(1, 7)
@@ -92,8 +92,10 @@ def inputs(dims: str) -> list[Quantity]:
 def outputs(dims: str) -> list[Quantity]:
     outs = [Quantity(f"tau[{i}]", 0.0, "N.m", f"motor torque command of wheel {i}") for i in WHEELS]
     if dims == "3d":
-        outs += [Quantity("steer[1]", 0.0, "rad", "steering angle command of wheel 5 (Eqs. 14-22)"),
-                 Quantity("steer[2]", 0.0, "rad", "steering angle command of wheel 6 (Eqs. 14-22)")]
+        outs += [Quantity("steer[1]", 0.0, "rad", "steering angle command of wheel 5 (Eqs. 14-22, within the servo's "
+                          f"range +-{STEER_LIMIT:g} rad)"),
+                 Quantity("steer[2]", 0.0, "rad", "steering angle command of wheel 6 (Eqs. 14-22, within the servo's "
+                          f"range +-{STEER_LIMIT:g} rad)")]
     outs += [Quantity(f"ctrl.omega_ref[{i}]", 0.0, "rad/s", f"wheel {i} rate from the inverse kinematics (Eq. 13)")
              for i in WHEELS]
     outs.append(Quantity("ctrl.v", 0.0, "m/s", "measured forward speed the controller used"))
@@ -144,6 +146,8 @@ def sample_function(dims: str) -> ca.Function:
     # the steered wheels point at the turn center of the COMMANDED motion: the trims (skid and slip corrections)
     # act through the wheel rates only, so the axles stay on the center the rover is asked to turn about
     steer = at(e["steer"], dict(values, xdot_d=cmd_v, phidot_d=cmd_yaw))
+    # a turn center close beside a steered wheel asks for more than its servo can turn: the servo's range it is
+    steer = ca.fmin(ca.fmax(steer, -STEER_LIMIT), STEER_LIMIT)
     speed_tau, speed_int = _pi(cmd_v - v, xd[0], p["ctrl.speed_kp"], p["ctrl.speed_ki"], lim, T)
     ik = [_pi(rates[k] - i[f"wheel[{k + 1}].omega"], xd[1 + k], p["ctrl.rate_kp"], p["ctrl.rate_ki"], lim, T)
           for k in range(6)]

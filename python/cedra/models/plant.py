@@ -82,8 +82,9 @@ def input_table(opt: ModelOptions) -> list[Quantity]:
         Quantity(f"tau[{i}]", 0.0, "N.m", f"motor torque of wheel {i} (about its axle, positive drives forward)")
         for i in range(1, 7)]
     if opt.steering:
-        ins += [Quantity("steer[1]", 0.0, "rad", "commanded steering angle of wheel 5 (theta3)", -1.5, 1.5),
-                Quantity("steer[2]", 0.0, "rad", "commanded steering angle of wheel 6 (theta6)", -1.5, 1.5)]
+        lim = parameters.STEER_LIMIT
+        ins += [Quantity("steer[1]", 0.0, "rad", "commanded steering angle of wheel 5 (theta3)", -lim, lim),
+                Quantity("steer[2]", 0.0, "rad", "commanded steering angle of wheel 6 (theta6)", -lim, lim)]
     ins.append(Quantity("mu", 0.8, "1", "friction coefficient wheel-ground", 0.0, 10.0))
     ins += [TERRAIN_INPUTS[n] for n in terrain_inputs(opt.terrain, opt.dims)]
     return ins

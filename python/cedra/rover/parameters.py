@@ -4,6 +4,8 @@ from math import atan2, sqrt
 
 from cedra.contract import Quantity as Q
 
+STEER_LIMIT = 1.5       # rad: the steering servos' range (the plant's steer[1..2] inputs, the controller's clip)
+
 ROVER = [
     Q("R_w", 0.065, "m", "wheel radius", min=1e-4),
     Q("bogie_x", 0.02, "m", "bogie pivot, x in the body frame (paper l1)"),
