@@ -47,6 +47,19 @@
 #define SW_SZ_IW SZ_IW
 #define SW_SZ_W SZ_W
 #endif
+/* chassis and link contact (cedra_cgap, cedra_fc, cedra_fcjac, generated when the scene has collision points) */
+#define CHASSIS CEDRA_CHASSIS
+#if CHASSIS
+#define WS_SZ_ARG MAX2(SW_SZ_ARG, MAX2(MAX2(cedra_cgap_SZ_ARG, cedra_fc_SZ_ARG), cedra_fcjac_SZ_ARG))
+#define WS_SZ_RES MAX2(SW_SZ_RES, MAX2(MAX2(cedra_cgap_SZ_RES, cedra_fc_SZ_RES), cedra_fcjac_SZ_RES))
+#define WS_SZ_IW MAX2(SW_SZ_IW, MAX2(MAX2(cedra_cgap_SZ_IW, cedra_fc_SZ_IW), cedra_fcjac_SZ_IW))
+#define WS_SZ_W MAX2(SW_SZ_W, MAX2(MAX2(cedra_cgap_SZ_W, cedra_fc_SZ_W), cedra_fcjac_SZ_W))
+#else
+#define WS_SZ_ARG SW_SZ_ARG
+#define WS_SZ_RES SW_SZ_RES
+#define WS_SZ_IW SW_SZ_IW
+#define WS_SZ_W SW_SZ_W
+#endif
 /* a switch is located when the step that crosses it is at most this long (s; more where time cannot resolve it) */
 #define LOC_TOL 1e-10
 #define MAX_LOCATE 4        /* locations of one switch per call (fmi2DoStep) before it is left to the error control */
@@ -75,10 +88,10 @@
 
 struct model_ws {
     const double *inp, *par;
-    const casadi_real *arg[DIM(SW_SZ_ARG)];
-    casadi_real *res[DIM(SW_SZ_RES)];
-    casadi_int iw[DIM(SW_SZ_IW)];
-    casadi_real w[DIM(SW_SZ_W)];
+    const casadi_real *arg[DIM(WS_SZ_ARG)];
+    casadi_real *res[DIM(WS_SZ_RES)];
+    casadi_int iw[DIM(WS_SZ_IW)];
+    casadi_real w[DIM(WS_SZ_W)];
     /* switch location: s and the held choices at the step's start (cached on (t, x)), s at its end */
     double sw0[DIM(NSW)], sw1[DIM(NSW)], hold[DIM(NH)], hold_tmp[DIM(NH)], sw_t, sw_x[NX];
     int sw_valid;
@@ -104,6 +117,9 @@ struct model_ws {
     int dyn_valid;
     double f[NQ], g[DIM(NZ)];
     double drdq[NQ * NQ], drdu[NQ * NQ], dgdq[DIM(NZ * NQ)], dgdu[DIM(NZ * NQ)];
+    /* chassis: whether a collision point touched at f's state (its forces were added to f), and their Jacobian */
+    int chassis_touch;
+    double fc[CHASSIS ? NQ : 1], dfc_dq[CHASSIS ? NQ * NQ : 1], dfc_du[CHASSIS ? NQ * NQ : 1];
     double col[NQ];
     double sres[DIM(NS)], sjac[DIM(NS * NS)], sdq[DIM(NS)], sq[NQ];
     int spiv[DIM(NS)];
@@ -244,6 +260,30 @@ static int eval_f(model_ws *ws, const double *q, const double *u, double t) {
         snprintf(ws->msg, sizeof ws->msg, "cedra_f failed at t=%.17g", t);
         return 1;
     }
+#if CHASSIS
+    /* the collision points' forces only while one touches: elsewhere they and their Jacobian are exactly zero,
+     * and evaluating them would cost about a third of a 3D model's f and Jacobian */
+    double depth;
+    ws->arg[1] = ws->inp;
+    ws->arg[2] = ws->par;
+    ws->res[0] = &depth;
+    if (cedra_cgap(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        snprintf(ws->msg, sizeof ws->msg, "cedra_cgap failed at t=%.17g", t);
+        return 1;
+    }
+    ws->chassis_touch = depth > 0;
+    ws->arg[1] = u;
+    ws->arg[2] = ws->inp;
+    ws->arg[3] = ws->par;
+    if (ws->chassis_touch) {
+        ws->res[0] = ws->fc;
+        if (cedra_fc(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+            snprintf(ws->msg, sizeof ws->msg, "cedra_fc failed at t=%.17g", t);
+            return 1;
+        }
+        for (int i = 0; i < NQ; i++) ws->f[i] += ws->fc[i];
+    }
+#endif
     return 0;
 }
 
@@ -668,6 +708,22 @@ int model_jac(void *ctx, double t, const double *x, const double *xdot, double *
         snprintf(ws->msg, sizeof ws->msg, "cedra_rjac failed at t=%.17g", t);
         return 1;
     }
+#if CHASSIS
+    if (ws->chassis_touch) {      /* of eval_dynamics' state, which is this one: r = M a - f - Qc */
+        ws->arg[2] = ws->inp;
+        ws->arg[3] = ws->par;
+        ws->res[0] = ws->dfc_dq;
+        ws->res[1] = ws->dfc_du;
+        if (cedra_fcjac(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+            snprintf(ws->msg, sizeof ws->msg, "cedra_fcjac failed at t=%.17g", t);
+            return 1;
+        }
+        for (int i = 0; i < NQ * NQ; i++) {
+            ws->drdq[i] -= ws->dfc_dq[i];
+            ws->drdu[i] -= ws->dfc_du[i];
+        }
+    }
+#endif
     memset(jac, 0, sizeof(double) * NX * NX);
     for (int j = 0; j < NQ; j++) {
         jac[j + (size_t)(NQ + j) * NX] = 1.0;                       /* dqdot/du = I */

@@ -22,7 +22,10 @@ class Built:
         return np.array(self.fns["cedra_M"](q, par))
 
     def f(self, q, u, inp, par):
+        """M udot = f: every force, the collision points' too (cedra_fc, kept apart in the FMU)."""
         f, g = self.fns["cedra_f"](q, u, inp, par)
+        if "cedra_fc" in self.fns:
+            f = f + self.fns["cedra_fc"](q, u, inp, par)
         return np.array(f).ravel(), float(g)
 
     def out(self, q, u, inp, par):
@@ -50,6 +53,8 @@ class Built:
         q, u = x[:self.n], x[self.n:]
         M = self.fns["cedra_M"](q, par)
         f = self.fns["cedra_f"](q, u, inp, par)[0]
+        if "cedra_fc" in self.fns:
+            f = f + self.fns["cedra_fc"](q, u, inp, par)
         ode = ca.vertcat(u, ca.solve(M, f))
         t = np.linspace(0, t_end, n_out + 1)
         I = ca.integrator("I", "cvodes", {"x": x, "ode": ode}, 0, t[1:],

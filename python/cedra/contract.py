@@ -45,6 +45,13 @@ except the contact forces, and the glue solves for accelerations and contact for
                   lambda_k (same frame) enters as M udot = f + W' lambda. Outputs named wheel[i].Fn/Fx/Fy/mode are
                   computed by the glue from its solution (cedra_out gives 0 there).
 
+Chassis and link contact (chassis == True) keeps the collision points' forces out of cedra_f and adds:
+    cedra_cgap    (q, inp, par)         -> (depth[1])   the deepest collision point's penetration (> 0: touching)
+    cedra_fc      (q, u, inp, par)      -> (Qc[nq])     their generalized force: M udot = f + Qc
+    cedra_fcjac   (q, u, inp, par)      -> (dQc_dq[nq x nq], dQc_du[nq x nq])
+                  Qc and its Jacobian are exactly zero while depth <= 0, so the glue evaluates them only then
+                  (cedra_settle and cedra_out include the points themselves).
+
 Force-law switches (generated only when the model has switches, len(switch_names) > 0):
     cedra_switch  (q, u, inp, par, hold[nh]) -> (s[nsw], hold_now[nh])
                   switching functions: each s_i is continuous in the state and changes sign exactly where a force
@@ -122,6 +129,7 @@ class ModelSpec:
     d_names: list[str] = field(default_factory=list)   # controller: discrete states, in xd order
     switch_names: list[str] = field(default_factory=list)   # cedra_switch's entries (none: no cedra_switch)
     n_hold: int = 0                         # cedra_switch's held discrete choices
+    chassis: bool = False                   # collision points on the body and links: cedra_cgap, cedra_fc, cedra_fcjac
     heightmap_file: str = ""                # terrain "heightmap": the grid file, shipped as resources/heightmap.txt;
     #                                         the generated functions call the external cedra_heightmap (its C
     #                                         implementation is fmu_src/heightmap.c)
@@ -134,7 +142,8 @@ class ModelSpec:
         if self.block == "controller":
             return list(CONTROLLER_FUNCTION_NAMES)
         return list(FUNCTION_NAMES) + (["cedra_contact"] if self.contact == "rigid" else []) + \
-            (["cedra_switch"] if self.switch_names else [])
+            (["cedra_switch"] if self.switch_names else []) + \
+            (["cedra_cgap", "cedra_fc", "cedra_fcjac"] if self.chassis else [])
 
     def check(self) -> None:
         """Raise ValueError if the functions do not follow the contract above."""
@@ -161,6 +170,10 @@ class ModelSpec:
         if self.contact == "rigid":
             nc = self.n_contacts
             expected["cedra_contact"] = ([nq, nq, ni, npar], [(3 * nc, nq), (3 * nc, 1), (3 * nc, 1), (nc, 1)])
+        if self.chassis:
+            expected["cedra_cgap"] = ([nq, ni, npar], [(1, 1)])
+            expected["cedra_fc"] = ([nq, nq, ni, npar], [(nq, 1)])
+            expected["cedra_fcjac"] = ([nq, nq, ni, npar], [(nq, nq), (nq, nq)])
         if self.switch_names:
             nsw, nh = len(self.switch_names), self.n_hold
             expected["cedra_switch"] = ([nq, nq, ni, npar, nh], [(nsw, 1), (nh, 1)])

@@ -191,9 +191,21 @@ class CedraModel:
             v_t = v - v_n * n
             Fn = ca.if_else(depth > 0, ca.fmax(0, p["ground_k"] * depth - p["ground_d"] * v_n), 0)
             Ft = -i_["mu"] * Fn * v_t / ca.sqrt(ca.dot(v_t, v_t) + p["v_eps"] ** 2)
-            self.kane.add_point_force(v, weight * (Fn * n + Ft))
-            out.append(dict(link=pt.link, weight=weight, depth=depth, Fn=Fn, v_n=v_n))
+            out.append(dict(link=pt.link, weight=weight, depth=depth, Fn=Fn, v_n=v_n,
+                            Q=ca.jacobian(v, self.u).T @ (weight * (Fn * n + Ft))))
         return out
+
+    @cached_property
+    def chassis_force(self):
+        """The collision points' generalized force (cedra_fc): kept out of Kane's f, so that the FMU evaluates it
+        only while a point touches (cedra_cgap > 0); elsewhere it and its Jacobian are exactly zero."""
+        n = self.q.numel()
+        return sum((c["Q"] for c in self.chassis), ca.SX.zeros(n, 1))
+
+    @cached_property
+    def chassis_depth(self):
+        """The deepest collision point's penetration g n_Z (cedra_cgap; > 0 while a point touches)."""
+        return ca.mmax(ca.vertcat(*[c["depth"] for c in self.chassis]))
 
     @property
     def multi_contact(self) -> bool:
@@ -349,8 +361,7 @@ class CedraModel:
                                    "(impulse / step, impacts included; at the start: the force there)"), 0))
         if self.chassis:
             o.append((_out("chassis.clearance", "m", "the body's and links' smallest height above the terrain over "
-                           "their collision points (-g n_Z; negative while touching)"),
-                      -ca.mmax(ca.vertcat(*[c["depth"] for c in self.chassis]))))
+                           "their collision points (-g n_Z; negative while touching)"), -self.chassis_depth))
             o.append((_out("chassis.Fn", "N", "the sum of the normal forces on the body's and links' collision "
                            "points"), sum(c["weight"] * c["Fn"] for c in self.chassis)))
         return o
@@ -461,7 +472,7 @@ class CedraModel:
             wheels = [1, 2, 5, 6] if self.opt.dims == "2d" else [1, 2, 3, 4, 5, 6]
             res = ca.vertcat(*[-self.contacts[k - 1]["geo"].depth for k in wheels])
         else:
-            res = ca.substitute(self.f, u, ca.DM.zeros(n))[sidx]
+            res = ca.substitute(self.f + self.chassis_force, u, ca.DM.zeros(n))[sidx]
         jac = ca.jacobian(res, q)[:, sidx]
         fns = {}
         res_ = self.resolve      # the contact search's frozen symbols, a heightmap's contact points
@@ -475,6 +486,12 @@ class CedraModel:
             hv = ca.vertcat(*hold) if hold else ca.SX(0, 1)
             fns["cedra_switch"] = _function("cedra_switch", [q, u, inp, par, hv], res_(
                 [ca.vertcat(*sw), ca.vertcat(*hold_now) if hold else ca.SX(0, 1)], derivatives=False))
+        if self.chassis:
+            Qc = self.chassis_force
+            fns["cedra_cgap"] = _function("cedra_cgap", [q, inp, par], res_([self.chassis_depth], derivatives=False))
+            fns["cedra_fc"] = _function("cedra_fc", [q, u, inp, par], res_([Qc], derivatives=False))
+            fns["cedra_fcjac"] = _function("cedra_fcjac", [q, u, inp, par],
+                                           res_([ca.jacobian(Qc, q), ca.jacobian(Qc, u)]))
         return fns | {
             "cedra_M": _function("cedra_M", [q, par], [self.M]),
             "cedra_f": _function("cedra_f", [q, u, inp, par], res_([self.f, self.power], derivatives=False)),
@@ -543,6 +560,7 @@ class CedraModel:
                          functions=dict(self._num), contact=self.opt.contact,
                          n_contacts=len(self.contacts) if self.rigid else 0, heightmap_file=self.opt.heightmap,
                          switch_names=list(self.switches[3]), n_hold=len(self.switches[1]),
+                         chassis=bool(self.chassis),
                          **kw)
 
     # ---------------- numeric helpers (tests, reference solutions) ----------------
@@ -566,4 +584,6 @@ class CedraModel:
     def udot(self, q, u, inp, par) -> np.ndarray:
         M = np.array(self._num["cedra_M"](q, par))
         f = np.array(self._num["cedra_f"](q, u, inp, par)[0]).ravel()
+        if self.chassis:
+            f = f + np.array(self._num["cedra_fc"](q, u, inp, par)).ravel()
         return np.linalg.solve(M, f)

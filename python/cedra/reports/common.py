@@ -129,6 +129,8 @@ class Problem:
         par = ca.MX.sym("par", len(self.pnames))
         q, u = x[:nq], x[nq:2 * nq]
         f, power = self.fns["cedra_f"](q, u, inp, par)
+        if "cedra_fc" in self.fns:                     # the collision points' forces (the FMU gates them)
+            f = f + self.fns["cedra_fc"](q, u, inp, par)
         udot = ca.solve(self.fns["cedra_M"](q, par), f)
         xdot = ca.vertcat(u, udot, power)
         self.x_sym, self.p_sym = x, ca.vertcat(inp, par)
