@@ -47,6 +47,11 @@ BAD = [
     ("[fixed]\nmu = 0.5\n[grid]\nmu = [0.5]\n", "grid.mu", "already set in [fixed]"),
     ("", "grid", "nothing to vary"),
     ("scenario = 'turn_flat'\n[grid]\nmu = [0.5]\n", "scene", "not both"),
+    ("[options]\nturbo = true\n[grid]\nmu = [0.5]\n", "options.turbo", "unknown option (options: drives"),
+    ("[options]\ndrives = 1\n[grid]\nmu = [0.5]\n", "options.drives", "expected true or false, got 1"),
+    ("options = ['drives']\n[grid]\nmu = [0.5]\n", "options", "expected a table"),
+    # a parameter of the drives is a parameter of the variant only
+    ("[grid]\ndrive_stall_torque = [6.0]\n", "grid.drive_stall_torque", "unknown parameter"),
 ]
 
 
@@ -214,6 +219,73 @@ def test_external_scheduler_gives_the_local_table(tmp_path, bump2d_fmu):
             p.wait(timeout=30)
 
 
+# ------------------------------------------------------------------ [options]: a variant of the scene
+
+STALL = """
+scene = "bump2d"
+stop_time = 6.0
+out = "OUT"
+[fixed]
+tau_max = 4.0
+[grid]
+mu = [0.8]
+terrain_h = [0.10, 0.14625]
+"""
+
+
+def test_drives_option_runs_the_drives_variant(tmp_path, bump2d_fmu):
+    """[options] drives = true on bump2d: the variant bump2d_drives is built (into build/variants/) and run; its
+    runs equal the shipped bump2d_drives FMU's (the same model), never share an id with the plain scene's, and show
+    the drives: at the bump's foot (t = 3.5-5 s) the unloaded bogie wheels spin up to 26-54 m/s of slip with plain
+    torques, to about the drives' free-running speed (10 rad/s, 0.65 m/s at the rim) with drives (0.6-0.9 m/s)."""
+    import zipfile
+    import xml.etree.ElementTree as ET
+    from cedra.models.scene import SWEEP_OPTIONS
+    assert "drives" in SWEEP_OPTIONS
+    plain = load(write(tmp_path, STALL))
+    drives = load(write(tmp_path, STALL + "[options]\ndrives = true\n", name="d.toml"))
+    drives.name = plain.name                                  # the same table: a resumed sweep must rerun every run
+    assert drives.target.variant and drives.target.scene.name == "bump2d_drives"
+    assert "drive_stall_torque" in drives.target.limits and "drive_stall_torque" not in plain.target.limits
+    assert plain.run_id(plain.runs()[0]) != drives.run_id(drives.runs()[0])
+    assert sw_mod.actuation(plain) == "plain torque (tau_max 4 N.m)"
+    assert sw_mod.actuation(drives) == "drives (stall 6 N.m, no-load 10 rad/s; tau_max 4 N.m commanded)"
+    assert execute(plain, BUILD, workers=2, quiet=True)["ran"] == 2
+    counts = execute(drives, BUILD, workers=2, quiet=True, resume=True)
+    assert counts == dict(total=2, skipped=0, ran=2, failed=0)
+    rows = read_table(drives.table)
+    assert len(rows) == 4
+    by_id = {r["id"]: r for r in rows}
+    variant_fmu = sw_mod.Path(BUILD) / "variants" / "bump2d_drives.fmu"
+    with zipfile.ZipFile(variant_fmu) as z:
+        md = ET.fromstring(z.read("modelDescription.xml"))
+    assert md.get("modelName") == "bump2d_drives"
+    assert "drive_stall_torque" in {v.get("name") for v in md.iter("ScalarVariable")}
+    shipped = fmu("bump2d_drives", BUILD).read_bytes()
+    for p in drives.runs():
+        d, q = by_id[drives.run_id(p)], by_id[plain.run_id(p)]
+        assert d["status"] == q["status"] == "ok", (d, q)
+        assert float(d["max_slip"]) < 1.5 < 20.0 < float(q["max_slip"]), (d["max_slip"], q["max_slip"])
+        alone = sw_mod.run_one(shipped, "bump", p, drives.stop_time, 60.0)
+        for o in drives.outputs:
+            if o in ("verdict",):
+                assert d[o] == alone[o]
+            else:
+                assert float(d[o]) == pytest.approx(alone[o], rel=1e-9, abs=1e-12, nan_ok=True), o
+    # the built variant is kept while its model and the FMU's sources are the same, and rebuilt otherwise
+    spec = drives.target.scene.spec()
+    assert sw_mod._same_build(variant_fmu, spec)
+    assert not sw_mod._same_build(fmu("bump2d_drives", BUILD), spec)          # another description: another GUID
+    changed = tmp_path / "changed.fmu"
+    with zipfile.ZipFile(variant_fmu) as src, zipfile.ZipFile(changed, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            dst.writestr(item, data + b"\n" if item.filename == "sources/solver.c" else data)
+    assert not sw_mod._same_build(changed, spec)
+    mtime = variant_fmu.stat().st_mtime_ns
+    assert sw_mod._build(drives, BUILD) == variant_fmu and variant_fmu.stat().st_mtime_ns == mtime
+
+
 # ------------------------------------------------------------------ the climbing map against single runs
 
 R_W = 0.065
@@ -279,7 +351,20 @@ def test_scenario_sweep(tmp_path):
         assert abs(float(r["yaw_rate"]) - cmd) < 0.05 * cmd, r
 
 
+def test_options_the_scene_refuses_fail_before_any_run(tmp_path):
+    """drives on a scene with locked wheels: the scene's own check, named by the sweep file's key."""
+    (tmp_path / "locked.toml").write_text('name = "locked2d"\ndims = "2d"\nterrain = "flat"\nlocked_wheels = true\n')
+    path = write(tmp_path, "scene = 'locked.toml'\nout = 'OUT'\n[options]\ndrives = true\n[grid]\nmu = [0.5]\n")
+    with pytest.raises(SweepError) as e:
+        load(path)
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: options.drives: scene locked2d refuses it: "), msg
+    assert "locked wheels have no motors" in msg, msg
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("body,key,reason", [
+    ("scenario = 'turn_flat'\n[options]\ndrives = true\n[grid]\nmu = [0.5]\n", "options", "only for a scene"),
     ("scenario = 'turn_flat'\n[grid]\nterrain_h = [0.1]\n", "grid.terrain_h",
      "unknown parameter 'terrain_h' of scenario turn_flat"),
     ("scenario = 'turn_flat'\n[grid]\nyaw_rate_cmd = [0.0]\n", "grid.yaw_rate_cmd", "outside the range"),
@@ -343,3 +428,86 @@ def test_a_rigid_runs_peak_force_carries_the_impacts():
     assert 550 < row["peak_Fn"] < 700, row
     # the ratio of the means: in the cone (mu = 0.8) up to the contact frame's turn within a step on the bump
     assert 0.5 < row["peak_ratio"] < 0.85, row
+
+
+# ------------------------------------------------------------------ verdicts with the reason
+
+def test_verdict_rule():
+    v = sw_mod.verdict
+    assert v("ok", True, False, None) == "over"
+    assert v("ok", True, False, 100.0) == "over"               # over is over, whatever the chassis carried
+    assert v("ok", False, True, None) == "tipped"
+    assert v("ok", False, True, 100.0) == "tipped"
+    assert v("ok", False, False, None) == "stuck"              # no chassis.Fn output: a rover cannot hang up
+    assert v("ok", False, False, sw_mod.HUNG_FN) == "stuck"
+    assert v("ok", False, False, sw_mod.HUNG_FN + 1e-6) == "hung up"
+    for status in ("timeout", "discard", "error", "failed"):
+        assert v(status, True, False, None) == v(status, False, False, 50.0) == "failed"
+    assert set(sw_mod.VERDICTS) == {"over", "stuck", "hung up", "tipped", "failed"}
+
+
+MAP = """
+scene = "bump2d"
+stop_time = 4.0
+out = "OUT"
+outputs = ["verdict", "climbed", "final_x", "t_end"]
+[grid]
+terrain_h = [0.0, 0.05, 0.1]
+mu = [0.2, 0.5, 0.8, 1.1]
+[map]
+x = "terrain_h"
+y = "mu"
+verdict = "verdict"
+x_scale = 0.065
+x_label = "h / R_w"
+"""
+
+
+def _row(sw, params, verdict, status="ok", reason="", final_x=1.0):
+    return {"id": sw.run_id(params), **{k: str(v) for k, v in params.items()}, "verdict": verdict,
+            "climbed": "1" if verdict == "over" else "0", "final_x": str(final_x), "t_end": "4",
+            "status": status, "reason": reason, "wall_s": "0.5"}
+
+
+def _synthetic(sw, layout):
+    """rows from a layout: {(h, mu): verdict or ("failed", status, reason)}"""
+    rows = []
+    for p in sw.runs():
+        v = layout[p["terrain_h"], p["mu"]]
+        if isinstance(v, tuple):
+            rows.append(_row(sw, p, "failed", status=v[1], reason=v[2]))
+        else:
+            rows.append(_row(sw, p, v, reason="" if v == "over" else f"{v} here", final_x=3.0 if v == "over" else
+                             0.7 + p["mu"]))
+    return rows
+
+
+def _colours(png):
+    from PIL import Image
+    return {rgb for _, rgb in Image.open(png).convert("RGB").getcolors(1 << 24)}
+
+
+def _rgb(hex_colour):
+    return tuple(int(hex_colour[k:k + 2], 16) for k in (1, 3, 5))
+
+
+LAYOUT = {   # h = 0: over everywhere; 0.05: not monotonic at mu 0.8 (and a failed run); 0.1: each other verdict
+    (0.0, 0.2): "over", (0.0, 0.5): "over", (0.0, 0.8): "over", (0.0, 1.1): "over",
+    (0.05, 0.2): "stuck", (0.05, 0.5): "over", (0.05, 0.8): "stuck", (0.05, 1.1): ("failed", "discard", "refused"),
+    (0.1, 0.2): "stuck", (0.1, 0.5): "hung up", (0.1, 0.8): "tipped", (0.1, 1.1): "over",
+}
+
+
+def test_map_draws_each_verdict_in_its_colour(tmp_path):
+    from cedra.run.sweep_map import VERDICT_COLOURS, draw
+    sw = load(write(tmp_path, MAP))
+    sw.out.mkdir(parents=True)
+    pixels = _colours(draw(sw, _synthetic(sw, LAYOUT)))
+    for name, colour in VERDICT_COLOURS.items():
+        assert _rgb(colour) in pixels, name
+    assert len(set(VERDICT_COLOURS.values())) == len(VERDICT_COLOURS)
+    # only over: no other verdict's colour (grey, the failed runs', is in the antialiased text too)
+    pixels = _colours(draw(sw, _synthetic(sw, dict.fromkeys(LAYOUT, "over"))))
+    assert _rgb(VERDICT_COLOURS["over"]) in pixels
+    assert not any(_rgb(VERDICT_COLOURS[c]) in pixels for c in ("stuck", "hung up", "tipped")), \
+        [c for c in VERDICT_COLOURS if _rgb(VERDICT_COLOURS[c]) in pixels]
