@@ -511,3 +511,60 @@ def test_map_draws_each_verdict_in_its_colour(tmp_path):
     assert _rgb(VERDICT_COLOURS["over"]) in pixels
     assert not any(_rgb(VERDICT_COLOURS[c]) in pixels for c in ("stuck", "hung up", "tipped")), \
         [c for c in VERDICT_COLOURS if _rgb(VERDICT_COLOURS[c]) in pixels]
+
+
+def test_report_counts_tables_monotonicity_and_failures(tmp_path):
+    from cedra.run import sweep_report
+    sw = load(write(tmp_path, MAP))
+    sw.out.mkdir(parents=True)
+    rows = _synthetic(sw, LAYOUT)
+    md = sweep_report.write(sw, rows, "python -m cedra sweep s.toml", 12.0, 1.0).read_text()
+    assert "Made by `python -m cedra sweep s.toml`" in md and "plain torque (tau_max 4 N.m)" in md
+    counts = {"over": 6, "stuck": 3, "hung up": 1, "tipped": 1, "failed": 1}
+    for verdict, n in counts.items():
+        assert f"| {verdict} | {n} | " in md, verdict
+    # the verdict table: rows mu, columns h / R_w
+    assert "| mu \\ h / R_w | 0 | 0.769 | 1.54 |" in md
+    assert "| 0.8 | over | stuck | tipped |" in md
+    assert "| 1.1 | over | failed | over |" in md
+    # the non-monotonic places: (0.05, 0.8) stuck above (0.05, 0.5) over; (0.1, 0.5) hung up and (0.1, 0.8)
+    # tipped above nothing over: monotonic there
+    bad = [line for line in md.splitlines() if line.startswith("- ")]
+    assert len(bad) == 1, bad
+    assert "h / R_w = 0.769: mu 0.5: over, final_x 3" in bad[0]
+    assert "mu 0.8: stuck, final_x 1.5, t_end 4, reason: stuck here" in bad[0]
+    assert "| discard | 4 | 0.5 | refused |" in md
+    # monotonic everywhere
+    rows = _synthetic(sw, {k: ("over" if k[1] >= 0.5 else "stuck") for k in LAYOUT})
+    md = sweep_report.write(sw, rows, "c", 1.0, 1.0).read_text()
+    assert "Yes: in every column" in md and "## Failed runs\n\nNone." in md
+    # the tolerance check: the same runs at a tight tolerance, one verdict different
+    tight = sw_mod.tightened(sw, 1e-9)
+    assert tight.name == f"{sw.name}_tol1e-09" and tight.fixed["solver.tol"] == 1e-9 and tight.map is None
+    tight_rows = [dict(r, id=tight.run_id({**p, "solver.tol": 1e-9})) for p, r in zip(sw.runs(), rows)]
+    flip = next(r for r in tight_rows if r["terrain_h"] == "0.1" and r["mu"] == "0.8")
+    flip.update(verdict="stuck", reason="stuck at tol", final_x="1.25")
+    md = sweep_report.write(sw, rows, "c", 1.0, 1.0, (1e-9, tight, tight_rows)).read_text()
+    assert "12 runs compared, 1 verdict(s) differ:" in md
+    assert "| 0.1 | 0.8 | over | stuck | 3 | 1.25 | stuck at tol |" in md
+    same = [dict(r, id=tight.run_id({**p, "solver.tol": 1e-9})) for p, r in zip(sw.runs(), rows)]
+    md = sweep_report.write(sw, rows, "c", 1.0, 1.0, (1e-9, tight, same)).read_text()
+    assert "12 runs compared, every verdict the same." in md
+
+
+def test_check_tol_cli_writes_the_report(tmp_path, bump2d_fmu, capsys):
+    from cedra.__main__ import main
+    path = write(tmp_path, MAP.replace("[0.0, 0.05, 0.1]", "[0.0]").replace("[0.2, 0.5, 0.8, 1.1]", "[0.5, 0.8]")
+                 .replace("stop_time = 4.0", "stop_time = 1.0"))
+    assert main(["sweep", str(path), "--build", BUILD, "--workers", "2", "--quiet", "--check-tol", "1e-9"]) == 0
+    out = tmp_path / "out"
+    assert len(read_table(out / "s_tol1e-09.csv")) == 2
+    assert all(r["solver.tol"] == "1e-09" for r in read_table(out / "s_tol1e-09.csv"))
+    md = (out / "s.md").read_text()
+    assert f"Made by `python -m cedra sweep {path} --workers 2 --check-tol 1e-09 --quiet`" in md
+    assert "## The same verdicts at solver.tol 1e-09?" in md
+    assert "2 runs compared, every verdict the same." in md, md            # 1 s on flat ground: stuck twice
+    assert "| stuck | 2 | " in md and "2 ran to the stop time without getting over and without stopping" in md
+    bad = write(tmp_path, MAP.replace("[grid]", "[grid]\n\"solver.tol\" = [1e-6, 1e-8]"), name="b.toml")
+    assert main(["sweep", str(bad), "--build", BUILD, "--check-tol", "1e-9"]) == 2
+    assert "--check-tol: solver.tol is what this sweep varies" in capsys.readouterr().err

@@ -1,5 +1,5 @@
 """Scenario sweeps on Dask: `python -m cedra sweep <sweep.toml> [--scheduler tcp://host:port] [--workers N]
-[--resume | --overwrite] [--quiet]`.
+[--resume | --overwrite] [--quiet] [--check-tol TOL]`.
 
 A sweep file names what one run runs, the parameters to vary (a grid and/or seeded random samples), the summary
 outputs to keep per run and where to write them:
@@ -42,6 +42,10 @@ runs finish, so an interrupted sweep loses nothing, and --resume runs only the r
 is identified by a hash of its scene, its [options], stop time and parameter values). A run that fails (the FMU
 refuses a step, the run times out, or its worker process dies) is recorded with its status and reason and the
 sweep goes on.
+
+A sweep with a [map] draws it (<out>/<name>.png, cedra.run.sweep_map) and writes its report next to it
+(<out>/<name>.md, cedra.run.sweep_report). --check-tol TOL runs every run again at solver.tol = TOL (the table
+<out>/<name>_tol<TOL>.csv) and the report says whether every verdict is the same.
 """
 from __future__ import annotations
 
@@ -57,7 +61,7 @@ import os
 import tempfile
 import time
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -86,10 +90,10 @@ TIPPED = 1.2           # rad: |body pitch| or |body roll| past this is a rover o
 HUNG_FN = 5.0          # N: a rover that did not get over is hung up when its chassis carried more than this on mean
 VERDICTS = {           # a scene run's verdict -> its meaning (verdict())
     "over": "every wheel center passed the obstacle's end, upright (climbed = 1)",
-    "stuck": "not over: body.x advanced less than STUCK_DX in STUCK_TIME, or the stop time came first (the reason "
-             "says which)",
-    "hung up": f"stuck while the chassis carries load: the mean of chassis.Fn over the last STUCK_TIME of the run "
-               f"> {HUNG_FN:g} N (only an FMU with the output chassis.Fn can hang up)",
+    "stuck": f"not over: body.x advanced less than {STUCK_DX * 1e3:g} mm in {STUCK_TIME:g} s, or the stop time "
+             f"came first (the reason says which)",
+    "hung up": f"stuck while the chassis carries load: the mean of chassis.Fn over the last {STUCK_TIME:g} s of the "
+               f"run > {HUNG_FN:g} N (only an FMU with the output chassis.Fn can hang up)",
     "tipped": f"|body pitch| or |body roll| passed {TIPPED} rad",
     "failed": "the run did not finish: status other than ok (the FMU refused a step, a timeout, an error); a "
               "failure to simulate, not a failure to climb",
@@ -695,6 +699,18 @@ def _same_build(path: Path, spec) -> bool:
         return False
 
 
+def tightened(sw: Sweep, tol: float) -> Sweep:
+    """The same sweep at solver.tol = tol: its own table <name>_tol<tol>.csv in the same directory, no map."""
+    if sw.target.kind != "scene" or "solver.tol" not in sw.target.limits:
+        raise SweepError(f"{sw.path}: --check-tol: only for a scene's sweep (its runs' solver.tol)")
+    if "solver.tol" in sw.grid or "solver.tol" in sw.random:
+        raise SweepError(f"{sw.path}: --check-tol: solver.tol is what this sweep varies")
+    lo, hi = sw.target.limits["solver.tol"]
+    if not (math.isfinite(tol) and tol > 0) or (lo is not None and tol < lo) or (hi is not None and tol > hi):
+        raise SweepError(f"{sw.path}: --check-tol: {tol:g} is outside the range of solver.tol [{lo}, {hi}]")
+    return replace(sw, name=f"{sw.name}_tol{tol:g}", fixed={**sw.fixed, "solver.tol": tol}, map=None)
+
+
 # ------------------------------------------------------------------ command line
 
 def resolve(name: str) -> Path:
@@ -720,23 +736,52 @@ def add_parser(sub):
     p.add_argument("--resume", action="store_true", help="run only the runs missing from the table")
     p.add_argument("--overwrite", action="store_true", help="start the table again")
     p.add_argument("--quiet", action="store_true", help="no progress")
+    p.add_argument("--check-tol", type=float, metavar="TOL",
+                   help="run every run again at solver.tol = TOL; the map's report says whether every verdict is the "
+                   "same (e.g. 1e-9)")
+
+
+def command(args) -> str:
+    """The command line of these arguments, for the report."""
+    words = ["python -m cedra sweep", args.file]
+    for flag in ("scheduler", "workers", "check_tol"):
+        if getattr(args, flag, None) is not None:
+            words.append(f"--{flag.replace('_', '-')} {getattr(args, flag)}")
+    if args.build != "build":
+        words.append(f"--build {args.build}")
+    words += [f"--{flag}" for flag in ("resume", "overwrite", "quiet") if getattr(args, flag)]
+    return " ".join(words)
 
 
 def main(args) -> int:
     import sys
+    from cedra.reports.common import load_average
+    from cedra.run import sweep_report
+    load_at_start = load_average()
+    check = getattr(args, "check_tol", None)
     try:
         sw = load(resolve(args.file))
         if args.workers is not None and args.workers < 1:
             raise SweepError(f"--workers: expected >= 1, got {args.workers}")
-        t0 = time.perf_counter()
-        c = execute(sw, args.build, args.scheduler, args.workers, args.resume, args.overwrite, args.quiet)
+        tight = tightened(sw, check) if check is not None else None
+        if tight is not None and not sw.map:
+            raise SweepError(f"{sw.path}: --check-tol: the sweep has no [map], whose report it goes into")
+        t0 = t_all = time.perf_counter()
+        sweeps = [sw] + ([tight] if tight else [])
+        for s in sweeps:
+            c = execute(s, args.build, args.scheduler, args.workers, args.resume, args.overwrite, args.quiet)
+            wall = time.perf_counter() - t0
+            rate = f", {60 * c['ran'] / wall:.1f} runs/min" if c["ran"] else ""
+            print(f"sweep {s.name}: {c['total']} runs, {c['skipped']} already in the table, {c['ran']} run "
+                  f"({c['failed']} failed) in {wall:.1f} s{rate}; table {s.table}")
+            t0 = time.perf_counter()
     except SweepError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    wall = time.perf_counter() - t0
-    rate = f", {60 * c['ran'] / wall:.1f} runs/min" if c["ran"] else ""
-    print(f"sweep {sw.name}: {c['total']} runs, {c['skipped']} already in the table, {c['ran']} run "
-          f"({c['failed']} failed) in {wall:.1f} s{rate}; table {sw.table}")
     if sw.map:
-        print(f"map {draw(sw, read_table(sw.table))}")
+        rows = read_table(sw.table)
+        print(f"map {draw(sw, rows)}")
+        checked = (check, tight, read_table(tight.table)) if tight else None
+        elapsed = time.perf_counter() - t_all
+        print(f"report {sweep_report.write(sw, rows, command(args), elapsed, load_at_start, checked)}")
     return 0
