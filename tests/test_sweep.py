@@ -75,12 +75,21 @@ def test_unknown_scene_and_cli_exit_code(tmp_path, capsys):
 
 
 def test_shipped_sweeps_load():
-    for name in ("climb", "climb_rigid"):
+    drives = {"climb": True, "climb_plain": False, "climb_rigid": False, "climb_step": True, "climb_step_plain": False}
+    for name, on in drives.items():
         sw = load(sw_mod.resolve(name))
-        assert len(sw.runs()) >= 200
+        assert len(sw.runs()) >= (200 if "step" not in name else 78)
         assert sw.fixed == {"tau_max": 4.0}
         assert max(sw.grid["terrain_h"]) == pytest.approx(3 * 0.065)
-    assert load(sw_mod.resolve("climb_step")).target.name == "step2d"
+        assert sw.target.scene.options.drives == on and sw.target.variant == on, name
+        assert sw.map["verdict"] == "verdict" and "verdict" in sw.outputs
+        assert sw_mod.actuation(sw).startswith("drives (stall 6 N.m, no-load 10 rad/s" if on else "plain torque")
+        assert ("plain torque" in sw.map["title"]) != on and ("drives" in sw.map["title"]) == on, name
+    for a, b in (("climb", "climb_plain"), ("climb_step", "climb_step_plain")):     # variants of the same map
+        sa, sb = load(sw_mod.resolve(a)), load(sw_mod.resolve(b))
+        assert sa.runs() == sb.runs() and sa.out != sb.out
+        assert not {sa.run_id(p) for p in sa.runs()} & {sb.run_id(p) for p in sb.runs()}
+    assert load(sw_mod.resolve("climb_step")).target.scene.name == "step2d_drives"
     assert load(sw_mod.resolve("turn_flat")).target.kind == "scenario"
     sc = load(sw_mod.resolve("step_climb"))
     assert sc.target.kind == "scenario" and "inverse kinematics.mean_slip" in sc.outputs
@@ -289,17 +298,20 @@ def test_drives_option_runs_the_drives_variant(tmp_path, bump2d_fmu):
 # ------------------------------------------------------------------ the climbing map against single runs
 
 R_W = 0.065
-# three points of the shipped map (examples/sweeps/climb.toml): one that climbs (next to the paper's case), one
-# that fails (a high bump with little friction: stuck), one at the edge (climbs, its next higher neighbour fails)
+# three points of the shipped maps (examples/sweeps/climb.toml with drives, climb_plain.toml with plain torques):
+# one that climbs (next to the paper's case), one that fails (a high bump with little friction: stuck), one at the
+# edge (climbs, its next higher neighbour fails); the same points in both maps
 MAP_POINTS = {"climbs": (7, 0.14625, 0.8), "fails": (9, 0.26, 0.2), "edge": (5, 0.26, 0.2)}
 
 
-def test_climbing_map_agrees_with_single_runs(tmp_path, bump2d_fmu):
+@pytest.mark.parametrize("name,scene", [("climb_plain", "bump2d"), ("climb", "bump2d_drives")])
+def test_climbing_map_agrees_with_single_runs(tmp_path, name, scene):
+    """Single runs on the shipped scene of the same model (bump2d_drives for the map's variant of bump2d)."""
     import numpy as np
     from cedra.run.simulate import run_bump
-    shipped = load(sw_mod.resolve("climb"))
+    shipped = load(sw_mod.resolve(name))
     heights = shipped.grid["terrain_h"]
-    sw = load(sw_mod.resolve("climb"))
+    sw = load(sw_mod.resolve(name))
     sw.out = tmp_path / "out"
     points = {k: dict(tau_max=4.0, terrain_h=heights[i], terrain_w=w, mu=mu) for k, (i, w, mu) in MAP_POINTS.items()}
     sw.grid = {"terrain_h": sorted({p["terrain_h"] for p in points.values()} | {heights[6]}),
@@ -312,6 +324,7 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, bump2d_fmu):
     for name, p in list(points.items()) + [("edge_above", edge_above)]:
         assert sw.run_id(p) in map_ids                      # the same run as the shipped map's
         verdicts[name] = table[sw.run_id(p)]["climbed"]
+        assert table[sw.run_id(p)]["verdict"] == ("over" if verdicts[name] == "1" else "stuck"), name
     assert verdicts == {"climbs": "1", "fails": "0", "edge": "1", "edge_above": "0"}
     # the map of these runs: both verdicts' colours are in the picture
     from PIL import Image
@@ -321,7 +334,7 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, bump2d_fmu):
     assert (0x5c, 0xb8, 0x5c) in pixels and (0xd9, 0x53, 0x4f) in pixels         # climbs (green), fails (red)
     # alone, through the main job's own loop (no early stop, the full 20 s): past the bump's end or not
     for name, p in points.items():
-        names, rows, _, info = run_bump(bump2d_fmu, shipped.stop_time,
+        names, rows, _, info = run_bump(fmu(scene, BUILD), shipped.stop_time,
                                         {k: v for k, v in p.items() if k != "tau_max"})
         assert info["ok"], info["messages"][-2:]
         goal = 1.0 + 2.5 * p["terrain_w"]

@@ -94,7 +94,7 @@ VERDICTS = {           # a scene run's verdict -> its meaning (verdict())
              f"came first (the reason says which)",
     "hung up": f"stuck while the chassis carries load: the mean of chassis.Fn over the last {STUCK_TIME:g} s of the "
                f"run > {HUNG_FN:g} N (only an FMU with the output chassis.Fn can hang up)",
-    "tipped": f"|body pitch| or |body roll| passed {TIPPED} rad",
+    "tipped": f"body pitch or roll past +-{TIPPED} rad (on its back or side)",
     "failed": "the run did not finish: status other than ok (the FMU refused a step, a timeout, an error); a "
               "failure to simulate, not a failure to climb",
 }

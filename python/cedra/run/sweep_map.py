@@ -107,10 +107,9 @@ def draw(sw, rows: list[dict]) -> Path:
             counts[c] += 1
         ax.pcolormesh(_edges(np.array(xs) / xscale), _edges(np.array(ys)), np.ma.masked_invalid(grid), cmap=cmap,
                       vmin=-0.5, vmax=len(cats) - 0.5, shading="flat", edgecolors="white", linewidth=0.3)
-        if mark and (mark_panel is None or pv == mark_panel):
-            ax.plot(mark[spec["x"]] / xscale, mark[spec["y"]], marker="*", ms=16, mec="k", mfc="gold", ls="none",
-                    label=mark.get("label", "marked"))
-            ax.legend(loc="lower right", fontsize=8)
+        if mark and (mark_panel is None or pv == mark_panel):      # in the figure's legend, not over the cells
+            star = ax.plot(mark[spec["x"]] / xscale, mark[spec["y"]], marker="*", ms=16, mec="k", mfc="gold",
+                           ls="none")[0]
         if pv is not None:
             ax.set_title(f"{spec.get('panel_label', spec['panels'])} = {pv / pscale:.3g}", fontsize=10)
         ax.set_xlabel(spec.get("x_label", spec["x"]))
@@ -123,7 +122,10 @@ def draw(sw, rows: list[dict]) -> Path:
         labels = [f"{spec['verdict']}: no ({counts['no']})", f"{spec['verdict']}: yes ({counts['yes']})",
                   f"run failed ({counts['failed']})"]
     handles = [plt.Rectangle((0, 0), 1, 1, color=colours[c]) for c in shown]
-    fig.legend(handles, labels, loc="lower center", ncol=len(shown), fontsize=8)
+    if mark:
+        handles.append(star)
+        labels.append(mark.get("label", "marked"))
+    fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=8)
     from cedra.run.sweep import actuation
     default_title = f"{sw.name}: {spec['verdict']} ({len(rows)} runs of {sw.target.kind} {sw.target.name})"
     title = spec.get("title", default_title)

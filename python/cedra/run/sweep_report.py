@@ -211,9 +211,12 @@ def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float,
         tol, tight, tight_rows = check
         compared, diffs = tolerance_differences(sw, rows, tight, tight_rows)
         tight_failed = sum(r["status"] != "ok" for r in tight_rows)
+        tight_walls = [float(r["wall_s"]) for r in tight_rows if _finite(r["wall_s"])]
+        walls_text = (f", wall time per run median {statistics.median(tight_walls):.2f} s, max "
+                      f"{max(tight_walls):.1f} s" if tight_walls else "")
         lines += [f"## The same verdicts at solver.tol {tol:g}?", "",
                   f"Every run again at solver.tol = {tol:g} (table `{tight.table.name}`; {tight_failed} of its runs "
-                  f"failed): {compared} runs compared, "
+                  f"failed{walls_text}): {compared} runs compared, "
                   + ("every verdict the same." if not diffs else f"{len(diffs)} verdict(s) differ:"), ""]
         if diffs:
             lines.append(_table(sw.parameters + ["verdict", f"at tol {tol:g}", "final_x", f"at tol {tol:g}",
