@@ -46,6 +46,11 @@ TOP_KEYS = {"name", "description", "dims", "terrain", "heightmap", "stairs_steps
             "solver", "parameters", "inputs", "start"}
 
 
+# The boolean scene keys (ModelOptions fields) a sweep file may set in its [options] table to run a variant of its
+# scene (cedra.run.sweep): each builds a different model, so the variant FMU gets its own name.
+SWEEP_OPTIONS = ("drives", "chassis")
+
+
 class SceneError(ValueError):
     pass
 

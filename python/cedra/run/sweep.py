@@ -1,5 +1,5 @@
 """Scenario sweeps on Dask: `python -m cedra sweep <sweep.toml> [--scheduler tcp://host:port] [--workers N]
-[--resume | --overwrite] [--quiet]`.
+[--resume | --overwrite] [--quiet] [--check-tol TOL]`.
 
 A sweep file names what one run runs, the parameters to vary (a grid and/or seeded random samples), the summary
 outputs to keep per run and where to write them:
@@ -10,6 +10,8 @@ outputs to keep per run and where to write them:
     outputs = ["climbed", "t_over", "peak_Fn", "final_x"]     # default: all of OUTPUTS
     out = "out/climb"                # the table: <out>/<name>.csv (relative to the working directory)
     run_timeout = 120.0              # s of wall time per run; a run past it is recorded as failed (default 300)
+    [options]                        # scene runs only: the scene's boolean build options (SWEEP_OPTIONS of
+    drives = true                    # cedra.models.scene); the sweep builds and runs that variant of the scene
     [fixed]                          # the same value in every run
     tau_max = 4.0
     [grid]                           # every combination: a list, or {from, to, num} (num points, both ends in)
@@ -27,17 +29,28 @@ equal torques clipped at tau_max) on that scene, summarized as OUTPUTS. For a sc
 outputs are its own PARAMETERS and SUMMARY, and each run is its run(params=...). A bad sweep file fails before
 any run (and before any build) naming the file, the key and the reason.
 
+[options] makes a variant of the scene: its file parsed again with those keys set (the scene's own checks apply:
+drives with locked_wheels fails, for instance), under its own model name (<scene>_drives; <scene>_nodrives for
+drives = false on a scene that has them), built into <build>/variants/ and rebuilt only when its model or the FMU
+sources changed. The options are part of every run's id, so the runs of two variants never mix in a table.
+
 Runs execute on Dask: a LocalCluster with one single-threaded worker process per core by default, or an existing
 cluster with --scheduler (the same code; the workers need this package installed, e.g. `pip install -e .` in a
 clone of the same commit; a scene's FMU is sent to them, no shared disk is needed; a scenario script reads its
 FMUs from the build directory, which the workers then need at the same path). Results are appended to the CSV as
 runs finish, so an interrupted sweep loses nothing, and --resume runs only the runs missing from the table (a run
-is identified by a hash of its scene, stop time and parameter values). A run that fails (the FMU refuses a step,
-the run times out, or its worker process dies) is recorded with its status and reason and the sweep goes on.
+is identified by a hash of its scene, its [options], stop time and parameter values). A run that fails (the FMU
+refuses a step, the run times out, or its worker process dies) is recorded with its status and reason and the
+sweep goes on.
+
+A sweep with a [map] draws it (<out>/<name>.png, cedra.run.sweep_map) and writes its report next to it
+(<out>/<name>.md, cedra.run.sweep_report). --check-tol TOL runs every run again at solver.tol = TOL (the table
+<out>/<name>_tol<TOL>.csv) and the report says whether every verdict is the same.
 """
 from __future__ import annotations
 
 import atexit
+import collections
 import contextlib
 import csv
 import hashlib
@@ -48,7 +61,7 @@ import os
 import tempfile
 import time
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +71,7 @@ from cedra.run.sweep_map import check_map, draw
 CONTROLLER = {"tau_max": 4.0, "v_ref": 0.2}        # the main job's controller (cedra.run.simulate)
 # summary outputs of one run (see summarize); status and reason are always kept
 OUTPUTS = {
+    "verdict": "over | stuck | hung up | tipped | failed: how the run ended (see VERDICTS)",
     "climbed": "1 if every wheel center passed the obstacle (x > obstacle end) before the stop time, upright, "
                "else 0",
     "t_over": "s: time when the last wheel center passed the obstacle (NaN if it did not)",
@@ -73,6 +87,17 @@ RUN_TIMEOUT = 300.0
 STUCK_TIME = 3.0       # s: a run whose body advanced less than STUCK_DX in this long is stopped: it will not climb
 STUCK_DX = 0.005
 TIPPED = 1.2           # rad: |body pitch| or |body roll| past this is a rover on its back or side: not a climb
+HUNG_FN = 5.0          # N: a rover that did not get over is hung up when its chassis carried more than this on mean
+VERDICTS = {           # a scene run's verdict -> its meaning (verdict())
+    "over": "every wheel center passed the obstacle's end, upright (climbed = 1)",
+    "stuck": f"not over: body.x advanced less than {STUCK_DX * 1e3:g} mm in {STUCK_TIME:g} s, or the stop time "
+             f"came first (the reason says which)",
+    "hung up": f"stuck while the chassis carries load: the mean of chassis.Fn over the last {STUCK_TIME:g} s of the "
+               f"run > {HUNG_FN:g} N (only an FMU with the output chassis.Fn can hang up)",
+    "tipped": f"body pitch or roll past +-{TIPPED} rad (on its back or side)",
+    "failed": "the run did not finish: status other than ok (the FMU refused a step, a timeout, an error); a "
+              "failure to simulate, not a failure to climb",
+}
 
 
 class SweepError(ValueError):
@@ -93,7 +118,7 @@ class Sweep:
     random: dict = field(default_factory=dict)      # name -> (lo, hi)
     samples: int = 0
     seed: int = 0
-    map: dict | None = None          # the [map] plot (cedra.run.climb_map)
+    map: dict | None = None          # the [map] plot (cedra.run.sweep_map)
 
     @property
     def table(self) -> Path:
@@ -115,8 +140,10 @@ class Sweep:
         return [{**self.fixed, **p, **d} for p in points for d in draws]
 
     def run_id(self, params: dict) -> str:
-        key = json.dumps({self.target.kind: self.target.name, "stop_time": self.stop_time, "params": params},
-                         sort_keys=True)
+        what = {self.target.kind: self.target.name, "stop_time": self.stop_time, "params": params}
+        if self.target.options:          # a variant's runs never share an id with the plain scene's
+            what["options"] = self.target.options
+        key = json.dumps(what, sort_keys=True)
         return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
@@ -124,6 +151,20 @@ class Sweep:
 
 def _fail(path, key, reason):
     raise SweepError(f"{path}: {key}: {reason}")
+
+
+def verdict(status: str, climbed: bool, tipped: bool, chassis_fn_mean: float | None) -> str:
+    """A scene run's verdict (VERDICTS) from how it ended; chassis_fn_mean is the mean of chassis.Fn over the last
+    STUCK_TIME of the run, None when the FMU has no such output."""
+    if status != "ok":
+        return "failed"
+    if climbed:
+        return "over"
+    if tipped:
+        return "tipped"
+    if chassis_fn_mean is not None and chassis_fn_mean > HUNG_FN:
+        return "hung up"
+    return "stuck"
 
 
 def _finite(path, key, value) -> float:
@@ -189,13 +230,54 @@ class Target:
     limits: dict          # parameter -> (min, max)
     outputs: dict         # output -> meaning
     stop_time: float      # default
-    scene: object = None  # kind "scene": the Scene
+    scene: object = None  # kind "scene": the Scene (with options: the variant)
     fmus: tuple = ()      # kind "scenario": the FMUs its run() opens (built before the runs start)
+    options: dict = field(default_factory=dict)    # kind "scene": the sweep file's [options]
+    variant: bool = False  # kind "scene": the options changed the scene: build target.scene, not the shipped FMU
 
 
-def _scene_target(path: Path, name: str) -> Target:
+def _options(path: Path, data) -> dict:
+    """The sweep file's [options]: known boolean scene keys, in SWEEP_OPTIONS order."""
+    from cedra.models.scene import SWEEP_OPTIONS
+    if not isinstance(data, dict):
+        _fail(path, "options", "expected a table")
+    for key, value in data.items():
+        if key not in SWEEP_OPTIONS:
+            _fail(path, f"options.{key}", f"unknown option (options: {', '.join(SWEEP_OPTIONS)})")
+        if not isinstance(value, bool):
+            _fail(path, f"options.{key}", f"expected true or false, got {value!r}")
+    return {k: data[k] for k in SWEEP_OPTIONS if k in data}
+
+
+def variant(path: Path, scene, options: dict):
+    """The scene with these options: its file parsed again with the keys set, so that the scene's own checks apply
+    (each key is applied in turn, and the first that the scene refuses is named). Named <scene>_<key> for each
+    option that changes the scene (<scene>_no<key> for one turned off); the scene itself if none does."""
+    from cedra.models.scene import SceneError, parse
+    changed = {k: v for k, v in options.items() if getattr(scene.options, k) != v}
+    if not changed:
+        return scene
+    try:
+        data = tomllib.loads(Path(scene.path).read_text())
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        _fail(path, "options", f"cannot read the scene file {scene.path} again: {e}")
+    name = scene.name + "".join(f"_{k}" if v else f"_no{k}" for k, v in changed.items())
+    what = ", ".join(f"{k} = {str(v).lower()}" for k, v in changed.items())
+    data.update(name=name, description=f"{scene.description} (a sweep's variant: {what})".strip())
+    for key, value in changed.items():
+        data[key] = value
+        try:
+            out = parse(data, scene.path)
+        except SceneError as e:
+            _fail(path, f"options.{key}", f"scene {scene.name} refuses it: {e}")
+    return out
+
+
+def _scene_target(path: Path, name: str, options: dict) -> Target:
     scene = _scene(path, name)
-    return Target("scene", name, settable(scene), OUTPUTS, scene.stop_time, scene)
+    var = variant(path, scene, options)
+    return Target("scene", name, settable(var), OUTPUTS, var.stop_time, var, options=options,
+                  variant=var is not scene)
 
 
 def _scenario_target(path: Path, name: str) -> Target:
@@ -220,8 +302,8 @@ def load(path) -> Sweep:
         raise SweepError(f"{path}: cannot read: {e.strerror}") from None
     except tomllib.TOMLDecodeError as e:
         raise SweepError(f"{path}: not valid TOML: {e}") from None
-    known = {"name", "scene", "scenario", "stop_time", "outputs", "out", "run_timeout", "fixed", "grid", "random",
-             "map"}
+    known = {"name", "scene", "scenario", "stop_time", "outputs", "out", "run_timeout", "options", "fixed", "grid",
+             "random", "map"}
     for key in data:
         if key not in known:
             _fail(path, key, f"unknown key (known: {', '.join(sorted(known))})")
@@ -231,7 +313,11 @@ def load(path) -> Sweep:
     for key in ("scene", "scenario"):
         if key in data and not isinstance(data[key], str):
             _fail(path, key, f"expected a name, got {data[key]!r}")
-    target = _scene_target(path, data["scene"]) if "scene" in data else _scenario_target(path, data["scenario"])
+    if "options" in data and "scenario" in data:
+        _fail(path, "options", "only for a scene (scene = ...): a scenario script opens its own FMUs")
+    options = _options(path, data.get("options", {}))
+    target = (_scene_target(path, data["scene"], options) if "scene" in data
+              else _scenario_target(path, data["scenario"]))
     stop_time = _finite(path, "stop_time", data.get("stop_time", target.stop_time))
     if stop_time <= 0:
         _fail(path, "stop_time", f"must be > 0, got {stop_time:g}")
@@ -309,6 +395,26 @@ def load(path) -> Sweep:
     return sw
 
 
+def actuation(sw: Sweep) -> str:
+    """What turns a scene run's wheels, for the map and its report: "drives (stall T_s N.m, no-load w_0 rad/s)"
+    or "plain torque"; each with the controller's tau_max (the command, which the drives clip by their envelope).
+    Empty for a scenario script."""
+    if sw.target.kind != "scene":
+        return ""
+    values = {**CONTROLLER, **sw.fixed}
+    swept = set(sw.grid) | set(sw.random)
+    tau = "tau_max swept" if "tau_max" in swept else f"tau_max {values['tau_max']:g} N.m"
+    scene = sw.target.scene
+    if not scene.options.drives:
+        return f"plain torque ({tau})"
+    from cedra.rover.parameters import DEFAULTS
+    par = {**DEFAULTS, **scene.parameters, **values}
+    stall = "stall swept" if "drive_stall_torque" in swept else f"stall {par['drive_stall_torque']:g} N.m"
+    w0 = ("no-load swept" if "drive_noload_speed" in swept
+          else f"no-load {par['drive_noload_speed']:g} rad/s")
+    return f"drives ({stall}, {w0}; {tau} commanded)"
+
+
 # ------------------------------------------------------------------ one run (on a worker)
 
 _FMU_FILES: dict[str, str] = {}          # per worker process: sha of the FMU's bytes -> a file holding them
@@ -334,16 +440,18 @@ def _fmu_file(fmu_bytes: bytes) -> str:
     return _FMU_FILES[sha]
 
 
-def obstacle_end(kind: str, p: dict) -> float:
-    """X past which the terrain is flat again (the climb's goal line)."""
+def obstacle_end(kind: str, p: dict, steps: int = 1) -> float:
+    """X past which the terrain is flat again (the climb's goal line); steps: the stairs' number of steps."""
     if kind in ("bump", "bump3d"):
         return p["terrain_x0"] + 2.5 * p["terrain_w"]         # the Gaussian is below 0.2 % of its height there
     if kind == "step":
         return p["terrain_x0"] + 4.0 * p["terrain_s"]         # tanh within 0.03 % of the top
+    if kind == "stairs":                                       # the top step's edge, the same way
+        return p["terrain_x0"] + (steps - 1) * p["terrain_w"] + 4.0 * p["terrain_s"]
     return math.nan
 
 
-def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout: float) -> dict:
+def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout: float, steps: int = 1) -> dict:
     """The main job's run (PI speed loop, equal torques clipped at tau_max) with these parameter values; the
     summary (OUTPUTS) and status/reason. It stops early once the rover is past the obstacle or stuck."""
     from cedra.run.driver import RoverFMU
@@ -358,19 +466,23 @@ def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout
     # gives way to the run's own timeout; the step-count budget (solver.max_steps) still bounds every step.
     values["solver.max_wall_time"] = timeout
     start = {n: float(fmu.vars[n].start) for n in ("terrain_x0", "terrain_w", "terrain_s") if fmu.has(n)}
-    goal = obstacle_end(kind, {**start, **values})
+    goal = obstacle_end(kind, {**start, **values}, steps)
     wheels = list(range(1, 7))
     # rigid contact: the forces' means over each communication step (impulse / step); a sample misses the impacts
     mean = "_mean" if fmu.has("wheel[1].Fn_mean") else ""
     fn = [f"wheel[{i}].Fn{mean}" for i in wheels]
     ft = [f"wheel[{i}].{c}{mean}" for i in wheels for c in ("Fx", "Fy")]
     attitude = [n for n in ("body.pitch", "body.roll") if fmu.has(n)]
+    chassis = ["chassis.Fn"] if fmu.has("chassis.Fn") else []       # a model whose body and links touch the terrain
     names = (["body.x", "body.vx"] + attitude + fn + ft + [f"wheel[{i}].slip" for i in wheels] +
-             [f"wheel[{i}].cx" for i in wheels])
+             [f"wheel[{i}].cx" for i in wheels] + chassis)
     s = dict(peak_Fn=0.0, peak_ratio=0.0, max_slip=0.0, t_over=math.nan, climbed=0, final_x=math.nan, t_end=0.0,
              status="ok", reason="")
     n = int(round(stop_time / SAMPLE))
+    back = int(round(STUCK_TIME / SAMPLE))
     x_hist = []
+    fn_hist = collections.deque(maxlen=back)         # chassis.Fn over the last STUCK_TIME
+    tipped = []
     col = {name: k for k, name in enumerate(names)}
     i_fn, i_fx, i_fy = ([col[f"wheel[{i}].{q}{mean}"] for i in wheels] for q in ("Fn", "Fx", "Fy"))
     i_slip, i_cx = ([col[f"wheel[{i}].{q}"] for i in wheels] for q in ("slip", "cx"))
@@ -384,14 +496,16 @@ def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout
             s["peak_ratio"] = max(s["peak_ratio"], float((Ft[loaded] / Fn[loaded]).max()))
         s["max_slip"] = max(s["max_slip"], float(np.abs(y[i_slip]).max()))
         s["final_x"], s["t_end"] = float(y[col["body.x"]]), t
+        if chassis:
+            fn_hist.append(float(y[col["chassis.Fn"]]))
         if any(abs(y[col[a]]) > TIPPED for a in attitude):
             s["reason"] = f"tipped over: |body attitude| > {TIPPED} rad at t = {t:g}"
+            tipped.append(t)
             return True
         if y[i_cx].min() > goal:
             s["climbed"], s["t_over"] = 1, t
             return True
         x_hist.append(y[col["body.x"]])
-        back = int(round(STUCK_TIME / SAMPLE))
         if len(x_hist) > back and x_hist[-1] - x_hist[-1 - back] < STUCK_DX:
             s["reason"] = f"stuck: body.x advanced less than {STUCK_DX} m in {STUCK_TIME} s"
             return True
@@ -411,6 +525,12 @@ def run_one(fmu_bytes: bytes, kind: str, params: dict, stop_time: float, timeout
         fmu.close()
     if not all(math.isfinite(s[k]) for k in ("peak_Fn", "peak_ratio", "max_slip")):
         s["status"], s["reason"] = "error", "non-finite output"
+    if s["status"] == "ok" and not s["climbed"] and not s["reason"]:
+        s["reason"] = "not over the obstacle at the stop time"
+    fn_mean = float(np.mean(fn_hist)) if chassis and fn_hist else None
+    s["verdict"] = verdict(s["status"], bool(s["climbed"]), bool(tipped), fn_mean)
+    if s["verdict"] == "hung up":
+        s["reason"] += f"; hung up: chassis.Fn {fn_mean:.3g} N on mean over the last {STUCK_TIME:g} s"
     s["wall_s"] = time.perf_counter() - wall
     return s
 
@@ -512,8 +632,8 @@ def execute(sw: Sweep, build_dir="build", scheduler: str | None = None, workers:
     try:
         if sw.target.kind == "scene":
             data = client.scatter(fmu_bytes, broadcast=True, hash=False)
-            kind = sw.target.scene.options.terrain
-            futures = {client.submit(run_one, data, kind, p, sw.stop_time, sw.run_timeout, key=f"run-{i}",
+            kind, steps = sw.target.scene.options.terrain, sw.target.scene.options.stairs_steps
+            futures = {client.submit(run_one, data, kind, p, sw.stop_time, sw.run_timeout, steps, key=f"run-{i}",
                                      pure=False): (i, p) for i, p in todo}
         else:
             from cedra.run.scenario import fmu
@@ -528,7 +648,7 @@ def execute(sw: Sweep, build_dir="build", scheduler: str | None = None, workers:
                 r = fut.result()
             except Exception as e:       # the worker died running it (KilledWorker) or the task could not run
                 r = {o: math.nan for o in sw.outputs}
-                r.update(status="failed", reason=f"{type(e).__name__}: {e}"[:300], wall_s=math.nan)
+                r.update(verdict="failed", status="failed", reason=f"{type(e).__name__}: {e}"[:300], wall_s=math.nan)
             row = {"id": i, **p, **r}
             writer.writerow([_fmt(row.get(c, "")) for c in cols])
             fh.flush()
@@ -549,10 +669,48 @@ def execute(sw: Sweep, build_dir="build", scheduler: str | None = None, workers:
 def _build(sw: Sweep, build_dir) -> Path:
     from cedra.models.scene import shipped
     from cedra.run.scenario import fmu
+    if sw.target.variant:
+        return _variant_fmu(sw.target.scene, Path(build_dir) / "variants")
     if sw.target.name in shipped():
         return fmu(sw.target.name, build_dir)
     from cedra.fmu.packaging import build_fmu
     return build_fmu(sw.target.scene.spec(), build_dir)
+
+
+def _variant_fmu(scene, build_dir: Path) -> Path:
+    """<build_dir>/<variant>.fmu, built unless the one there is the same build (_same_build)."""
+    from cedra.fmu.packaging import build_fmu
+    spec = scene.spec()
+    path = build_dir / f"{spec.name}.fmu"
+    return path if _same_build(path, spec) else build_fmu(spec, build_dir)
+
+
+def _same_build(path: Path, spec) -> bool:
+    """Whether the FMU at path is this spec's (its GUID: the variables and the model functions) from today's
+    hand-written sources (fmu_src)."""
+    import zipfile
+    import xml.etree.ElementTree as ET
+    from cedra.fmu.packaging import FMU_SRC, _generator
+    try:
+        with zipfile.ZipFile(path) as z:
+            guid = ET.fromstring(z.read("modelDescription.xml")).get("guid")
+            return guid == _generator().spec_guid(spec) and all(
+                z.read(name) == (FMU_SRC / Path(name).name).read_bytes() for name in z.namelist()
+                if name.startswith("sources/") and (FMU_SRC / Path(name).name).is_file())
+    except (OSError, KeyError, zipfile.BadZipFile, ET.ParseError):
+        return False
+
+
+def tightened(sw: Sweep, tol: float) -> Sweep:
+    """The same sweep at solver.tol = tol: its own table <name>_tol<tol>.csv in the same directory, no map."""
+    if sw.target.kind != "scene" or "solver.tol" not in sw.target.limits:
+        raise SweepError(f"{sw.path}: --check-tol: only for a scene's sweep (its runs' solver.tol)")
+    if "solver.tol" in sw.grid or "solver.tol" in sw.random:
+        raise SweepError(f"{sw.path}: --check-tol: solver.tol is what this sweep varies")
+    lo, hi = sw.target.limits["solver.tol"]
+    if not (math.isfinite(tol) and tol > 0) or (lo is not None and tol < lo) or (hi is not None and tol > hi):
+        raise SweepError(f"{sw.path}: --check-tol: {tol:g} is outside the range of solver.tol [{lo}, {hi}]")
+    return replace(sw, name=f"{sw.name}_tol{tol:g}", fixed={**sw.fixed, "solver.tol": tol}, map=None)
 
 
 # ------------------------------------------------------------------ command line
@@ -580,23 +738,52 @@ def add_parser(sub):
     p.add_argument("--resume", action="store_true", help="run only the runs missing from the table")
     p.add_argument("--overwrite", action="store_true", help="start the table again")
     p.add_argument("--quiet", action="store_true", help="no progress")
+    p.add_argument("--check-tol", type=float, metavar="TOL",
+                   help="run every run again at solver.tol = TOL; the map's report says whether every verdict is the "
+                   "same (e.g. 1e-9)")
+
+
+def command(args) -> str:
+    """The command line of these arguments, for the report."""
+    words = ["python -m cedra sweep", args.file]
+    for flag in ("scheduler", "workers", "check_tol"):
+        if getattr(args, flag, None) is not None:
+            words.append(f"--{flag.replace('_', '-')} {getattr(args, flag)}")
+    if args.build != "build":
+        words.append(f"--build {args.build}")
+    words += [f"--{flag}" for flag in ("resume", "overwrite", "quiet") if getattr(args, flag)]
+    return " ".join(words)
 
 
 def main(args) -> int:
     import sys
+    from cedra.reports.common import load_average
+    from cedra.run import sweep_report
+    load_at_start = load_average()
+    check = getattr(args, "check_tol", None)
     try:
         sw = load(resolve(args.file))
         if args.workers is not None and args.workers < 1:
             raise SweepError(f"--workers: expected >= 1, got {args.workers}")
-        t0 = time.perf_counter()
-        c = execute(sw, args.build, args.scheduler, args.workers, args.resume, args.overwrite, args.quiet)
+        tight = tightened(sw, check) if check is not None else None
+        if tight is not None and not sw.map:
+            raise SweepError(f"{sw.path}: --check-tol: the sweep has no [map], whose report it goes into")
+        t0 = t_all = time.perf_counter()
+        sweeps = [sw] + ([tight] if tight else [])
+        for s in sweeps:
+            c = execute(s, args.build, args.scheduler, args.workers, args.resume, args.overwrite, args.quiet)
+            wall = time.perf_counter() - t0
+            rate = f", {60 * c['ran'] / wall:.1f} runs/min" if c["ran"] else ""
+            print(f"sweep {s.name}: {c['total']} runs, {c['skipped']} already in the table, {c['ran']} run "
+                  f"({c['failed']} failed) in {wall:.1f} s{rate}; table {s.table}")
+            t0 = time.perf_counter()
     except SweepError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    wall = time.perf_counter() - t0
-    rate = f", {60 * c['ran'] / wall:.1f} runs/min" if c["ran"] else ""
-    print(f"sweep {sw.name}: {c['total']} runs, {c['skipped']} already in the table, {c['ran']} run "
-          f"({c['failed']} failed) in {wall:.1f} s{rate}; table {sw.table}")
     if sw.map:
-        print(f"map {draw(sw, read_table(sw.table))}")
+        rows = read_table(sw.table)
+        print(f"map {draw(sw, rows)}")
+        checked = (check, tight, read_table(tight.table)) if tight else None
+        elapsed = time.perf_counter() - t_all
+        print(f"report {sweep_report.write(sw, rows, command(args), elapsed, load_at_start, checked)}")
     return 0

@@ -5,12 +5,15 @@ drawn from the sweep's table to <out>/<name>.png:
     x = "terrain_h"              # grid parameters on the axes
     y = "mu"
     panels = "terrain_w"         # optional: one panel per grid value
-    verdict = "climbed"          # an output that is 1 (yes) or 0 (no)
+    verdict = "verdict"          # the output "verdict" (over, stuck, hung up, tipped, failed: VERDICTS of
+                                 # cedra.run.sweep), or an output that is 1 (yes) or 0 (no), such as "climbed"
     x_scale = 0.065              # optional: show x / x_scale (e.g. in wheel radii) ...
     x_label = "h / R_w"          # ... under this label (likewise panel_scale, panel_label)
     mark = {terrain_h = 0.14625, terrain_w = 0.14625, mu = 0.8, label = "the paper's run"}
 
-Runs that failed (status other than ok) are drawn grey: a failure to simulate is not a failure to climb.
+Each verdict has its own colour (VERDICT_COLOURS), and the legend counts the runs of each. Runs that failed (status
+other than ok) are drawn grey: a failure to simulate is not a failure to climb. The title's second line says what
+turns the wheels (drives and their envelope, or plain torque: cedra.run.sweep.actuation).
 """
 from __future__ import annotations
 
@@ -19,6 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+VERDICT_COLOURS = {"over": "#5cb85c", "stuck": "#d9534f", "hung up": "#f0ad4e", "tipped": "#8e44ad",
+                   "failed": "#bbbbbb"}
+YES_NO_COLOURS = {"no": "#d9534f", "yes": "#5cb85c", "failed": "#bbbbbb"}      # a 1/0 verdict such as climbed
 KEYS = {"x", "y", "panels", "verdict", "x_scale", "x_label", "panel_scale", "panel_label", "y_label", "mark", "title"}
 
 
@@ -53,6 +59,21 @@ def _close(a, b) -> bool:
     return abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))
 
 
+def cell(row: dict, verdict: str) -> str:
+    """A table row's category on the map: one of VERDICT_COLOURS for the output "verdict", else one of
+    YES_NO_COLOURS (a 1/0 output); "failed" for a run whose status is not ok, whatever its outputs."""
+    if row["status"] != "ok":
+        return "failed"
+    if verdict == "verdict":
+        return row["verdict"] if row["verdict"] in VERDICT_COLOURS else "failed"
+    return "yes" if float(row[verdict]) >= 0.5 else "no"
+
+
+def index(values, v) -> int | None:
+    """The position of v among a grid's values, None if it is not one of them."""
+    return next((k for k, g in enumerate(values) if _close(float(v), g)), None)
+
+
 def draw(sw, rows: list[dict]) -> Path:
     """Draw the map from the sweep's table rows (as read from its CSV); returns the PNG's path."""
     import matplotlib
@@ -69,35 +90,50 @@ def draw(sw, rows: list[dict]) -> Path:
                   if 'panels' in spec and spec['panels'] in mark else None)
     fig, axes = plt.subplots(1, len(panels), figsize=(max(7.0, 3.6 * len(panels) + 1), 4.6), sharey=True,
                              squeeze=False)
-    cmap = ListedColormap(["#d9534f", "#5cb85c", "#bbbbbb"])      # 0 fails, 1 climbs, 2 the run failed
+    colours = VERDICT_COLOURS if spec["verdict"] == "verdict" else YES_NO_COLOURS
+    cats = list(colours)
+    cmap = ListedColormap([colours[c] for c in cats])
+    counts = dict.fromkeys(cats, 0)
     for ax, pv in zip(axes[0], panels):
         grid = np.full((len(ys), len(xs)), np.nan)
         for r in rows:
             if pv is not None and not _close(float(r[spec["panels"]]), pv):
                 continue
-            ix = [k for k, v in enumerate(xs) if _close(float(r[spec["x"]]), v)]
-            iy = [k for k, v in enumerate(ys) if _close(float(r[spec["y"]]), v)]
-            if not ix or not iy:
+            ix, iy = index(xs, r[spec["x"]]), index(ys, r[spec["y"]])
+            if ix is None or iy is None:
                 continue
-            ok = r["status"] == "ok"
-            grid[iy[0], ix[0]] = 2 if not ok else (1 if float(r[spec["verdict"]]) >= 0.5 else 0)
+            c = cell(r, spec["verdict"])
+            grid[iy, ix] = cats.index(c)
+            counts[c] += 1
         ax.pcolormesh(_edges(np.array(xs) / xscale), _edges(np.array(ys)), np.ma.masked_invalid(grid), cmap=cmap,
-                      vmin=0, vmax=2, shading="flat", edgecolors="white", linewidth=0.3)
-        if mark and (mark_panel is None or pv == mark_panel):
-            ax.plot(mark[spec["x"]] / xscale, mark[spec["y"]], marker="*", ms=16, mec="k", mfc="gold", ls="none",
-                    label=mark.get("label", "marked"))
-            ax.legend(loc="lower right", fontsize=8)
+                      vmin=-0.5, vmax=len(cats) - 0.5, shading="flat", edgecolors="white", linewidth=0.3)
+        if mark and (mark_panel is None or pv == mark_panel):      # in the figure's legend, not over the cells
+            star = ax.plot(mark[spec["x"]] / xscale, mark[spec["y"]], marker="*", ms=16, mec="k", mfc="gold",
+                           ls="none")[0]
         if pv is not None:
             ax.set_title(f"{spec.get('panel_label', spec['panels'])} = {pv / pscale:.3g}", fontsize=10)
         ax.set_xlabel(spec.get("x_label", spec["x"]))
     axes[0][0].set_ylabel(spec.get("y_label", spec["y"]))
-    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in cmap.colors]
-    fig.legend(handles, [f"{spec['verdict']}: no", f"{spec['verdict']}: yes", "run failed"], loc="lower center",
-               ncol=3, fontsize=8)
+    if spec["verdict"] == "verdict":           # the verdicts that occur, each with its count
+        shown = [c for c in cats if counts[c]] or cats
+        labels = [f"{c} ({counts[c]})" for c in shown]
+    else:
+        shown = cats
+        labels = [f"{spec['verdict']}: no ({counts['no']})", f"{spec['verdict']}: yes ({counts['yes']})",
+                  f"run failed ({counts['failed']})"]
+    handles = [plt.Rectangle((0, 0), 1, 1, color=colours[c]) for c in shown]
+    if mark:
+        handles.append(star)
+        labels.append(mark.get("label", "marked"))
+    fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=8)
+    from cedra.run.sweep import actuation
     default_title = f"{sw.name}: {spec['verdict']} ({len(rows)} runs of {sw.target.kind} {sw.target.name})"
-    fig.suptitle(spec.get("title", default_title),
-                 x=0.02, ha="left", fontsize=11)
-    fig.tight_layout(rect=(0, 0.06, 1, 0.93))
+    title = spec.get("title", default_title)
+    how = actuation(sw)
+    if how:
+        title += f"\n{sw.target.scene.name}: {how}"
+    fig.suptitle(title, x=0.02, ha="left", fontsize=10)
+    fig.tight_layout(rect=(0, 0.06, 1, 0.9 if how else 0.93))
     out = sw.out / f"{sw.name}.png"
     fig.savefig(out, dpi=110)
     plt.close(fig)
