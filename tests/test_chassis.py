@@ -42,7 +42,7 @@ def _pose(b, **values):
 
 
 def _points_from_outputs(y, pitch):
-    """The collision points of a planar pose in world (X, Z), from the spec's geometry and the model's outputs
+    """The collision points of a planar pose in world (X, Z), from docs/model.md's geometry and the model's outputs
     only: the body's box from body.x/z/pitch, the bogie points from the wheel centers, the fork's from the
     four-bar's angles (theta4, theta5). Each with its count in the plane (its twins across the rover)."""
     c, s = math.cos(pitch), math.sin(pitch)

@@ -686,7 +686,7 @@ def _variant_fmu(scene, build_dir: Path) -> Path:
 
 
 def _same_build(path: Path, spec) -> bool:
-    """Whether the FMU at path is this spec's (its GUID: the variables and the model functions) from today's
+    """Whether the FMU at path is this ModelSpec's (its GUID: the variables and the model functions) from today's
     hand-written sources (fmu_src)."""
     import zipfile
     import xml.etree.ElementTree as ET
