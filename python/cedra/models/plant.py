@@ -134,6 +134,7 @@ class CedraModel:
         self._frozen = []           # (symbol, expression) of the contact search (_freeze)
         self._searches = {}         # wheel index -> its contact search (cedra_rim_search's result)
         self._rim_search = None
+        self._newton = ca.SX.sym("newton")     # the search's Newton correction: 1 with derivatives, else 0 (resolve)
         self.contacts = [self._wheel_contact(wh) for wh in self.rover.wheels]
         self.M, self.f = self.kane.equations()
         qd = self.rate(self.qf)
@@ -156,7 +157,8 @@ class CedraModel:
     def resolve(self, exprs: list, derivatives: bool = True) -> list:
         """exprs with the contact search's frozen symbols put back, then the heightmap's (terrain.resolve)."""
         if self._frozen:
-            exprs = ca.substitute(list(exprs), [s for s, _ in self._frozen], [e for _, e in self._frozen])
+            exprs = ca.substitute(list(exprs), [s for s, _ in self._frozen] + [self._newton],
+                                  [e for _, e in self._frozen] + [ca.SX(1 if derivatives else 0)])
         return self.terrain.resolve(exprs, derivatives)
 
     def rate(self, expr):
@@ -188,7 +190,8 @@ class CedraModel:
                     self._rim_search = rim.search_external(self.terrain)
                 search = self._rim_search(rim.search_input(wh.center, wh.axle, p["R_w"], self.terrain))
             self._searches[wh.index] = search
-            geos, present = rim_contacts(wh.center, wh.axle, self.terrain, p["R_w"], search, self._freeze)
+            geos, present = rim_contacts(wh.center, wh.axle, self.terrain, p["R_w"], search, self._freeze,
+                                          self._newton)
         else:
             geos, present = [contact_geometry(wh.center, wh.axle, self.terrain, p["R_w"])], [1]
         parts = []
