@@ -14,6 +14,9 @@
   pose on terrains whose bounds allow it, each with exactly one maximum in the exhaustive search and the same
   contact; it takes none on terrains that can hold a second maximum (a dip narrower than the wheel, a dip just
   past the wheel's curvature, the step's foot), where the exhaustive search finds two.
+- The contract functions' one-maximum form (CedraModel._contract: where every wheel has one maximum, the absent
+  contacts folded away) gives bit for bit what the full form gives, over bump2d's bump and at step2d's step; and
+  CasADi's derivative of cedra_f (what the reports' implicit peers use) is cedra_rjac's.
 """
 from __future__ import annotations
 
@@ -314,3 +317,48 @@ def test_one_maximum_shortcut_never_hides_a_second(kind, values, dims, xs, tilt,
     else:
         assert several > 0          # these terrains do hold a second maximum
     print(f"{kind} {values}: shortcut at {taken} of {len(poses)} poses, {several} with several maxima")
+
+
+@pytest.mark.parametrize("scene, xs", [("bump2d", (0.3, 1.7)), ("step2d", (0.6, 1.0))])
+def test_one_maximum_form_is_the_full_form(scene, xs):
+    sc = load_shipped(scene)
+    m = CedraModel(sc.options)
+    par, inp = m.default_par(), m.default_inp(**sc.inputs)
+    fns, full = m._num, m.functions(one=False)
+    wheel = Wheel(sc.options.terrain, {q.name: q.start for q in sc.spec(m).inputs} | sc.inputs, sc.options.dims)
+    test = rim.one_maximum_test(wheel.terrain)
+    geo = ca.Function("geo", [m.q, m.par], [ca.horzcat(*[w.center for w in m.rover.wheels]),
+                                            ca.horzcat(*[w.axle for w in m.rover.wheels])])
+    rng = np.random.default_rng(5)
+    q0 = np.array(sc.spec(m).q_start, float)
+    ones = 0
+    for x in np.linspace(*xs, 40):
+        q0[m.q_names.index("x")] = x
+        q = np.array(fns["cedra_guess"](q0, inp, par)).ravel() + rng.normal(0, 1e-3, q0.size)
+        u, a = rng.normal(0, 0.1, q.size), rng.normal(0, 1.0, q.size)
+        c, ax = [np.array(v) for v in geo(q, par)]
+        ones += all(test(c[:, i], ax[:, i], R_W, wheel.t) for i in range(c.shape[1]))
+        args = {"cedra_f": (q, u, inp, par), "cedra_rjac": (q, u, a, inp, par), "cedra_out": (q, u, [0.0], inp, par),
+                "cedra_switch": (q, u, inp, par, ca.DM(0, 1)), "cedra_settle": (q, inp, par)}
+        for name, arg in args.items():
+            arg = [ca.DM(v) for v in arg]
+            for got, want in zip(fns[name].call(arg), full[name].call(arg)):
+                assert np.array_equal(np.array(got), np.array(want)), (scene, x, name)
+    if scene == "bump2d":
+        assert ones == 40          # the shortcut proves one maximum on every wheel: the one-maximum form throughout
+
+
+def test_cedra_f_differentiates_as_cedra_rjac():
+    """The MX Jacobian of cedra_f (cedra.reports.common: the peers' exact Jacobian) through the searches and the
+    two forms equals -cedra_rjac (a = 0) on bump2d's bump: the implicit function theorem reaches both."""
+    sc = load_shipped("bump2d")
+    m = CedraModel(sc.options)
+    par, inp = m.default_par(), m.default_inp(**sc.inputs)
+    q0 = np.array(sc.spec(m).q_start, float)
+    q0[m.q_names.index("x")] = 0.95
+    q = np.array(m._num["cedra_guess"](q0, inp, par)).ravel()
+    u = np.random.default_rng(1).normal(0, 0.1, q.size)
+    Q = ca.MX.sym("q", q.size)
+    J = np.array(ca.Function("J", [Q], [ca.jacobian(m._num["cedra_f"](Q, u, inp, par)[0], Q)])(q))
+    R = np.array(m._num["cedra_rjac"](q, u, np.zeros_like(q), inp, par)[0])
+    assert np.max(np.abs(J + R)) < 1e-12 * np.max(np.abs(R))

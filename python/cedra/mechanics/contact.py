@@ -160,7 +160,7 @@ def terrain_functions(terrain: Terrain) -> dict[str, ca.Function]:
             "cedra_terrain_bounds": terrain.bounds_function()}
 
 
-def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None, newton=1):
+def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None):
     """The contacts of a wheel (docs/model.md, Several contacts per wheel): the local maxima of g on the lower half rim, up to MAX_CONTACTS
     ordered by beta, with the saddles between neighbours and their shared penetrations. Returns the contact slots
     (always MAX_CONTACTS; a slot without a maximum has depth ABSENT_DEPTH) and their presence flags. Planar terrain
@@ -172,12 +172,7 @@ def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None, ne
     enters as b = b0 - g'(b0) / g''(b0) with b0 the search's angle (its value b0 at convergence, its derivative
     what the implicit function theorem gives), a saddle's height as g at its angle (stationary: its derivative
     is the partial one). Every choice of the search is a piecewise-constant start for Newton, so the forces are
-    continuous wherever it converges (the exhaustive search in the tests holds it to 1e-9 m).
-
-    newton: the weight of that Newton correction, 1 or a symbol the caller sets to 1 where derivatives are taken
-    and to 0 in functions that hold none (CedraModel.resolve): the search converges b0 to rounding, so there the
-    correction's value is below rounding and only its derivative counts; a function without derivatives then
-    uses b0 itself and never evaluates g' and g'' at it."""
+    continuous wherever it converges (the exhaustive search in the tests holds it to 1e-9 m)."""
     if terrain.planar or terrain.external_rim:
         geo = contact_geometry(center, axle, terrain, radius)
         absent = ContactGeometry(geo.point, geo.normal, geo.frame, ca.SX(ABSENT_DEPTH), geo.slope)
@@ -190,7 +185,7 @@ def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None, ne
     for b0 in r[0:3]:
         _, d1, d2 = gfun(b0)
         inside = ca.logic_and(d2 < 0, ca.fabs(b0) < ca.pi / 2 - 1e-12)     # an end of the rim is not stationary
-        b_max.append(b0 - newton * ca.if_else(inside, d1 / ca.if_else(inside, d2, -1), 0))
+        b_max.append(b0 - ca.if_else(inside, d1 / ca.if_else(inside, d2, -1), 0))
     g_max = [gfun(b)[0] for b in b_max]
     g_sad = [ca.if_else(present[k + 1], gfun(b)[0], -1) for k, b in enumerate(r[3:5])]
     count = sum(present)

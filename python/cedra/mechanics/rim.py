@@ -27,6 +27,7 @@ SOURCE = REPO_ROOT / "fmu_src" / "rim.c"
 HOST_DIR = REPO_ROOT / "build" / "host"
 EXTERNAL_NAME = "cedra_rim_search"
 N_RESULT = 8            # [beta of maxima 1..3, beta of saddles 1..2, presence of maxima 1..3]
+ONE_MAXIMUM = {1: 0, 2: 0, 3: 0, 4: 0, 5: 1, 6: 0, 7: 0}     # the results where the search finds one maximum
 
 
 class RimBuildError(RuntimeError):
