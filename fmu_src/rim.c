@@ -13,7 +13,20 @@
  * > its right one (an end where g rises toward it); the first three maxima by beta are kept; each is polished by
  * safeguarded Newton on g' = 0 inside its samples' bracket (a Newton step that leaves the bracket or meets g'' of
  * the wrong sign is replaced by bisection), started from the vertex of the samples' parabola; each saddle from
- * the lowest sample between two kept maxima the same way. At most RIM_ITER iterations each: a bounded cost. */
+ * the lowest sample between two kept maxima the same way. At most RIM_ITER iterations each: a bounded cost.
+ *
+ * One maximum, proven (search_one): with G >= |gradient f| and U >= the largest eigenvalue of f's Hessian over
+ * the whole terrain (the scene's generated cedra_terrain_bounds), every stationary point of g on the half rim is
+ * a strict maximum when (N = (-grad f, 1) at the rim point, w its radius direction, u its tangent, a the axle)
+ *   1. L = |a_XY| - |a_Z| G > 0: at a stationary point (N.u = 0) |N.w| = |N x a| >= L;
+ *   2. R max(U, 0) < L: there g'' = R^2 u_XY' H u_XY + R N.w < 0 wherever N.w < 0;
+ *   3. (1 - G |grad f(c)|) / |N(c)| > |n0.a| (|a_Z| + G |a_XY|): N.t > 0 at every rim point (t: n0 in the rim's
+ *      plane, n0 the unit normal at the center), while a stationary point with N.w > 0 on the half rim
+ *      (w.t <= 0) has N.t = (N.w)(w.t) <= 0; so N.w < 0 at every stationary point.
+ * A function on an interval whose stationary points are all strict maxima has at most one of them: g rises,
+ * then falls (or is monotone), and the rim has exactly the one maximum the samples would find. It is then found
+ * from beta = 0 by the same safeguarded Newton on [-pi/2, pi/2] without the samples; an end is the maximum
+ * where g rises toward it (checked the first time a step would leave the bracket or meet g'' >= 0). */
 #include <math.h>
 #include <stddef.h>
 #include <string.h>
@@ -106,17 +119,121 @@ static int polish(rim_ctx *k, double b, double lo, double hi, int maximum, doubl
     return 0;
 }
 
+int cedra_terrain_bounds(const double **arg, double **res, casadi_int *iw, double *w, int mem);
+int cedra_terrain_bounds_work(casadi_int *sz_arg, casadi_int *sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+
+/* The rim's frame as cedra_rim_samples forms it: beta = 0 along -t, t the terrain's unit normal at the center
+ * projected into the rim's plane; r2 = a x r1 */
+static void rim_frame(rim_ctx *k, const double n0[3]) {
+    const double *a = k->a;
+    double na = n0[0] * a[0] + n0[1] * a[1] + n0[2] * a[2], t[3];
+    for (int i = 0; i < 3; i++) t[i] = n0[i] - na * a[i];
+    double tn = sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
+    for (int i = 0; i < 3; i++) k->r1[i] = -(t[i] / tn);
+    k->r2[0] = a[1] * k->r1[2] - a[2] * k->r1[1];
+    k->r2[1] = a[2] * k->r1[0] - a[0] * k->r1[2];
+    k->r2[2] = a[0] * k->r1[1] - a[1] * k->r1[0];
+}
+
+/* 1 where the terrain's bounds prove that the rim has one maximum (the test at the top of this file), with n0
+ * the unit normal at the center; 0 where they do not */
+static int proven_one(rim_ctx *k, double n0[3]) {
+    const double margin = 1e-9, *a = k->a;
+    double bounds[2], hc, gc[2], Hc[4];
+    k->arg[0] = k->tin;
+    k->res[0] = bounds;
+    if (cedra_terrain_bounds(k->arg, k->res, k->iw, k->w, 0)) return 0;
+    double G = bounds[0], U = bounds[1];
+    if (!(isfinite(G) && isfinite(U) && G >= 0)) return 0;
+    double a_xy = sqrt(a[0] * a[0] + a[1] * a[1]), a_z = fabs(a[2]), L = a_xy - a_z * G;
+    if (!(L > 0 && k->R * fmax(U, 0.0) < (1 - margin) * L)) return 0;                 /* 1 and 2 */
+    if (terrain_at(k, k->c[0], k->c[1], &hc, gc, Hc)) return 0;
+    double nN = sqrt(gc[0] * gc[0] + gc[1] * gc[1] + 1);
+    n0[0] = -gc[0] / nN, n0[1] = -gc[1] / nN, n0[2] = 1 / nN;
+    double na = fabs(n0[0] * a[0] + n0[1] * a[1] + n0[2] * a[2]);
+    return (1 - G * sqrt(gc[0] * gc[0] + gc[1] * gc[1])) / nN > na * (a_z + G * a_xy) + margin;      /* 3 */
+}
+
+/* The search where the terrain's bounds prove one maximum: safeguarded Newton from beta = 0 (polish's steps and
+ * stopping rule). The maximum lies on the side where g rises at 0; that side's end is checked the first time a
+ * step is not a Newton step inside the bracket. *one = 0: not proven (the caller samples the rim). */
+static int search_one(rim_ctx *k, double *r, int *one) {
+    const double step = 3.14159265358979323846 / 12;
+    double n0[3];
+    *one = 0;
+    if (!proven_one(k, n0)) return 0;
+    rim_frame(k, n0);
+    double b = 0, g0, d1, d2;
+    if (gfun(k, b, &g0, &d1, &d2)) return 1;
+    double end = d1 > 0 ? 6 * step : -6 * step, lo = -6 * step, hi = 6 * step;
+    int end_checked = 0;
+    for (int it = 0; it < RIM_ITER && d1 != 0; it++) {
+        if (d1 > 0) lo = b;
+        else hi = b;
+        double next = 0.5 * (lo + hi);
+        int newton_step = 0;
+        if (d2 < 0) {
+            double newton = b - d1 / d2;
+            if (newton >= lo && newton <= hi) next = newton, newton_step = 1;
+        }
+        if (!newton_step && !end_checked) {
+            double ge, d1e, d2e;
+            end_checked = 1;
+            if (gfun(k, end, &ge, &d1e, &d2e)) return 1;
+            if (end > 0 ? d1e > 0 : d1e < 0) {          /* g rises toward the end: the end is the maximum */
+                b = end;
+                break;
+            }
+        }
+        if (next == b || (newton_step && fabs(next - b) < 1e-13) || hi - lo <= 4 * 2.2e-16 * fabs(b)) {
+            b = next;
+            break;
+        }
+        b = next;
+        if (gfun(k, b, &g0, &d1, &d2)) return 1;
+    }
+    memset(r, 0, RIM_NR * sizeof *r);
+    r[0] = b;
+    r[5] = 1;
+    *one = 1;
+    return 0;
+}
+
+static int work_fits(void) {
+    casadi_int sz_arg, sz_res, sz_iw, sz_w;
+    int (*work[3])(casadi_int *, casadi_int *, casadi_int *, casadi_int *) = {
+        cedra_terrain_work, cedra_rim_samples_work, cedra_terrain_bounds_work};
+    for (int i = 0; i < 3; i++) {
+        work[i](&sz_arg, &sz_res, &sz_iw, &sz_w);
+        if (sz_arg > 64 || sz_res > 64 || sz_iw > 256 || sz_w > RIM_WORK) return 0;
+    }
+    return 1;
+}
+
+static void bind(rim_ctx *k, const double *x) {
+    k->c = x;
+    k->a = x + 3;
+    k->R = x[6];
+    k->tin = x + 7;
+}
+
+/* For the tests (the FMU does not export it): 1 where search_one takes the wheel x = [c, a, R, tin] */
+int cedra_rim_one_maximum(const double *x);
+int cedra_rim_one_maximum(const double *x) {
+    rim_ctx k;
+    double n0[3];
+    if (!work_fits()) return 0;
+    bind(&k, x);
+    return proven_one(&k, n0);
+}
+
 static int search(const double *x, double *r) {
     rim_ctx k;
-    casadi_int sz_arg, sz_res, sz_iw, sz_w;
-    cedra_terrain_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
-    if (sz_arg > 64 || sz_res > 64 || sz_iw > 256 || sz_w > RIM_WORK) return 1;
-    cedra_rim_samples_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
-    if (sz_arg > 64 || sz_res > 64 || sz_iw > 256 || sz_w > RIM_WORK) return 1;
-    k.c = x;
-    k.a = x + 3;
-    k.R = x[6];
-    k.tin = x + 7;
+    if (!work_fits()) return 1;
+    bind(&k, x);
+    int one;
+    if (search_one(&k, r, &one)) return 1;
+    if (one) return 0;
     /* the samples, the frame (beta = 0 along the normal under the center projected into the rim's plane) and
      * g' at both ends, from the scene's generated cedra_rim_samples (straight-line code) */
     const double pi = 3.14159265358979323846, step = pi / 12;
@@ -144,7 +261,8 @@ static int search(const double *x, double *r) {
         if ((j == 0 && d1_end[0] < 0) || (j == RIM_NSAMPLE - 1 && d1_end[1] > 0)) {
             b = beta[j];                               /* g rises toward the end: the end is the maximum */
         } else {
-            double lo = beta[j > 0 ? j - 1 : 0], hi = beta[j < RIM_NSAMPLE - 1 ? j + 1 : j];
+            int jl = j > 0 ? j - 1 : 0, jh = j < RIM_NSAMPLE - 1 ? j + 1 : RIM_NSAMPLE - 1;
+            double lo = beta[jl], hi = beta[jh];
             double start = (j > 0 && j < RIM_NSAMPLE - 1) ? vertex(beta[j], step, gs[j - 1], gs[j], gs[j + 1], 1)
                                                            : beta[j];
             if (polish(&k, fmin(hi, fmax(lo, start)), lo, hi, 1, &b)) return 1;
@@ -186,34 +304,53 @@ const casadi_int *jac_cedra_rim_search_sparsity_out(casadi_int i) { return i == 
 
 static const double ZERO_X[RIM_NX];     /* CasADi passes NULL for an all-zero argument */
 
-/* The last RIM_MEMO searches of this thread, by their exact input: an implicit solver's Jacobian is taken at the
+/* The recent searches of this thread, by their exact input: an implicit solver's Jacobian is taken at the
  * state where it just evaluated the right-hand side, and the switching functions at the end of a step are the
  * next step's start, so a pose is searched several times in a row. A pure cache: the result for a given x is
- * the same whichever instance or call asked first, so it changes no result and needs no per-instance state. */
-#define RIM_MEMO 16
+ * the same whichever instance or call asked first, so it changes no result and needs no per-instance state.
+ * Two ways per set, the set picked by the wheel center's bits; a miss replaces the way used less recently. */
+#define RIM_MEMO_SETS_BITS 5
 typedef struct {
     double x[RIM_NX], r[RIM_NR];
+    int used;
 } rim_memo_entry;
-static __thread rim_memo_entry memo[RIM_MEMO];
-static __thread int memo_used, memo_next;
+static __thread struct {
+    rim_memo_entry e[1 << RIM_MEMO_SETS_BITS][2];
+    unsigned char recent[1 << RIM_MEMO_SETS_BITS];
+} memo;
+
+static unsigned memo_set(const double *x) {
+    unsigned long long h = 0, bits;
+    for (int i = 0; i < 3; i++) {
+        memcpy(&bits, &x[i], sizeof bits);
+        h = (h ^ bits) * 0x9E3779B97F4A7C15ULL;
+    }
+    return (unsigned)(h >> (64 - RIM_MEMO_SETS_BITS));
+}
 
 int cedra_rim_search(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
     (void)iw, (void)w, (void)mem;
     const double *x = arg[0] ? arg[0] : ZERO_X;
-    double r[RIM_NR];
-    int hit = -1;
-    for (int i = 0; i < memo_used && hit < 0; i++)
-        if (memcmp(memo[i].x, x, sizeof memo[i].x) == 0) hit = i;
-    if (hit >= 0) {
-        memcpy(r, memo[hit].r, sizeof r);
-    } else {
-        if (search(x, r)) return 1;
-        memcpy(memo[memo_next].x, x, sizeof memo[memo_next].x);
-        memcpy(memo[memo_next].r, r, sizeof r);
-        memo_next = (memo_next + 1) % RIM_MEMO;
-        if (memo_used < RIM_MEMO) memo_used++;
+    unsigned set = memo_set(x);
+    rim_memo_entry *m = NULL;
+    for (int way = 0; way < 2 && !m; way++) {
+        rim_memo_entry *e = &memo.e[set][way];
+        if (e->used && memcmp(e->x, x, sizeof e->x) == 0) {
+            m = e;
+            memo.recent[set] = (unsigned char)way;
+        }
     }
-    if (res[0]) memcpy(res[0], r, sizeof r);
+    if (!m) {
+        double r[RIM_NR];
+        if (search(x, r)) return 1;
+        int way = !memo.recent[set];
+        m = &memo.e[set][way];
+        memcpy(m->x, x, sizeof m->x);
+        memcpy(m->r, r, sizeof r);
+        m->used = 1;
+        memo.recent[set] = (unsigned char)way;
+    }
+    if (res[0]) memcpy(res[0], m->r, sizeof m->r);
     return 0;
 }
 

@@ -10,6 +10,13 @@
   it, each contact carries what statics says for the two normals.
 - The model's Jacobian (derivatives through the frozen search, implicit function theorem) against central
   differences of cedra_f at a state with two contacts on a wheel.
+- The search's shortcut where the terrain's bounds prove one maximum (fmu_src/rim.c, no samples): it takes every
+  pose on terrains whose bounds allow it, each with exactly one maximum in the exhaustive search and the same
+  contact; it takes none on terrains that can hold a second maximum (a dip narrower than the wheel, a dip just
+  past the wheel's curvature, the step's foot), where the exhaustive search finds two.
+- The contract functions' one-maximum form (CedraModel._contract: where every wheel has one maximum, the absent
+  contacts folded away) gives bit for bit what the full form gives, over bump2d's bump and at step2d's step; and
+  CasADi's derivative of cedra_f (what the reports' implicit peers use) is cedra_rjac's.
 """
 from __future__ import annotations
 
@@ -35,7 +42,7 @@ class Wheel:
         self.names = terrain_inputs(kind, dims)
         ins = {n: ca.SX.sym(n) for n in self.names}
         self.t = [values[n] for n in self.names]
-        terrain = Terrain(kind, ins)
+        terrain = self.terrain = Terrain(kind, ins)
         c, a, v = ca.SX.sym("c", 3), ca.SX.sym("a", 3), ca.SX.sym("v", 3)
         k, d, mu = ca.SX.sym("k"), ca.SX.sym("d"), ca.SX.sym("mu")
         search = rim.search_external(terrain)(rim.search_input(c, a, R_W, terrain))
@@ -258,3 +265,100 @@ def test_search_is_exhaustive_on_the_shipped_runs(scene, seconds):
     near = [(c, a) for c, a in states if max(wheel.reference_depths(c, a) or [-1]) > -0.01]
     worst, two = assert_search_exact(wheel, [c for c, _ in near], [a for _, a in near])
     print(f"{scene}: worst {worst:.1e} m over {len(near)} wheel poses near the ground, {two} with several contacts")
+
+
+def touching_poses(wheel, xs, rng, n, tilt=0.0, ys=(0.0, 0.0)):
+    """n wheel poses (center, axle) over X in xs (Y in ys), the axle rolled and yawed by up to tilt rad, the center
+    placed between 5 mm into the terrain and 2 mm above touching it (the highest g of the rim at center Z = 0)."""
+    poses = []
+    b = np.linspace(-np.pi / 2, np.pi / 2, 3601)
+    for _ in range(n):
+        X, Y = rng.uniform(*xs), rng.uniform(*ys)
+        roll, yaw = rng.uniform(-tilt, tilt, 2)
+        a = np.array([-np.sin(yaw) * np.cos(roll), np.cos(yaw) * np.cos(roll), np.sin(roll)])
+        r1, r2 = ref.rim_frame(None, a, wheel.normal(X, Y))
+        z = np.max(ref.g_of(wheel.height, (X, Y, 0.0), R_W, r1, r2)(b))
+        poses.append((np.array([X, Y, z + rng.uniform(-0.005, 0.002)]), a))
+    return poses
+
+
+def reference_maxima(wheel, center, axle):
+    r1, r2 = ref.rim_frame(center, axle, wheel.normal(center[0], center[1]))
+    return len(ref.extrema(ref.g_of(wheel.height, center, R_W, r1, r2))[0])
+
+
+@pytest.mark.parametrize("kind, values, dims, xs, tilt, proven", [
+    ("bump", dict(terrain_h=0.14625, terrain_w=0.14625, terrain_x0=1.0), "2d", (0.7, 1.3), 0.0, True),
+    ("bump", dict(terrain_h=0.14625, terrain_w=0.14625, terrain_x0=1.0), "3d", (0.7, 1.3), 0.05, True),
+    # a dip whose bottom bends at 0.9 of the wheel's curvature (R |f''| = 0.9) and one at 1.1
+    ("bump", dict(terrain_h=-0.9 * 0.1 ** 2 / (2 * R_W), terrain_w=0.1, terrain_x0=1.0), "2d", (0.85, 1.15), 0.0, True),
+    ("bump", dict(terrain_h=-1.1 * 0.1 ** 2 / (2 * R_W), terrain_w=0.1, terrain_x0=1.0), "2d", (0.997, 1.003), 0.0,
+     False),
+    ("bump", dict(terrain_h=-0.03, terrain_w=0.04, terrain_x0=1.0), "2d", (0.93, 1.07), 0.0, False),
+    ("step", dict(terrain_h=0.08, terrain_s=0.1, terrain_x0=1.0), "2d", (0.7, 1.3), 0.0, True),
+    ("step", STEP, "2d", (0.9, 0.97), 0.0, False),
+    ("waves", dict(terrain_h=0.01, terrain_w=0.5), "3d", (0.0, 0.5), 0.3, True),
+])
+def test_one_maximum_shortcut_never_hides_a_second(kind, values, dims, xs, tilt, proven):
+    wheel = Wheel(kind, values, dims)
+    test = rim.one_maximum_test(wheel.terrain)
+    rng = np.random.default_rng(11)
+    poses = touching_poses(wheel, xs, rng, 30, tilt, (0.0, 0.5) if kind == "waves" else (0.0, 0.0))
+    taken, several = 0, 0
+    for c, a in poses:
+        maxima = reference_maxima(wheel, c, a)
+        took = test(c, a, R_W, wheel.t)
+        assert not (took and maxima > 1), (c, a, maxima)
+        taken += took
+        several += maxima > 1
+    assert taken == (len(poses) if proven else 0), (taken, len(poses))
+    if proven:
+        assert_search_exact(wheel, [c for c, _ in poses], [a for _, a in poses])
+    else:
+        assert several > 0          # these terrains do hold a second maximum
+    print(f"{kind} {values}: shortcut at {taken} of {len(poses)} poses, {several} with several maxima")
+
+
+@pytest.mark.parametrize("scene, xs", [("bump2d", (0.3, 1.7)), ("step2d", (0.6, 1.0))])
+def test_one_maximum_form_is_the_full_form(scene, xs):
+    sc = load_shipped(scene)
+    m = CedraModel(sc.options)
+    par, inp = m.default_par(), m.default_inp(**sc.inputs)
+    fns, full = m._num, m.functions(one=False)
+    wheel = Wheel(sc.options.terrain, {q.name: q.start for q in sc.spec(m).inputs} | sc.inputs, sc.options.dims)
+    test = rim.one_maximum_test(wheel.terrain)
+    geo = ca.Function("geo", [m.q, m.par], [ca.horzcat(*[w.center for w in m.rover.wheels]),
+                                            ca.horzcat(*[w.axle for w in m.rover.wheels])])
+    rng = np.random.default_rng(5)
+    q0 = np.array(sc.spec(m).q_start, float)
+    ones = 0
+    for x in np.linspace(*xs, 40):
+        q0[m.q_names.index("x")] = x
+        q = np.array(fns["cedra_guess"](q0, inp, par)).ravel() + rng.normal(0, 1e-3, q0.size)
+        u, a = rng.normal(0, 0.1, q.size), rng.normal(0, 1.0, q.size)
+        c, ax = [np.array(v) for v in geo(q, par)]
+        ones += all(test(c[:, i], ax[:, i], R_W, wheel.t) for i in range(c.shape[1]))
+        args = {"cedra_f": (q, u, inp, par), "cedra_rjac": (q, u, a, inp, par), "cedra_out": (q, u, [0.0], inp, par),
+                "cedra_switch": (q, u, inp, par, ca.DM(0, 1)), "cedra_settle": (q, inp, par)}
+        for name, arg in args.items():
+            arg = [ca.DM(v) for v in arg]
+            for got, want in zip(fns[name].call(arg), full[name].call(arg)):
+                assert np.array_equal(np.array(got), np.array(want)), (scene, x, name)
+    if scene == "bump2d":
+        assert ones == 40          # the shortcut proves one maximum on every wheel: the one-maximum form throughout
+
+
+def test_cedra_f_differentiates_as_cedra_rjac():
+    """The MX Jacobian of cedra_f (cedra.reports.common: the peers' exact Jacobian) through the searches and the
+    two forms equals -cedra_rjac (a = 0) on bump2d's bump: the implicit function theorem reaches both."""
+    sc = load_shipped("bump2d")
+    m = CedraModel(sc.options)
+    par, inp = m.default_par(), m.default_inp(**sc.inputs)
+    q0 = np.array(sc.spec(m).q_start, float)
+    q0[m.q_names.index("x")] = 0.95
+    q = np.array(m._num["cedra_guess"](q0, inp, par)).ravel()
+    u = np.random.default_rng(1).normal(0, 0.1, q.size)
+    Q = ca.MX.sym("q", q.size)
+    J = np.array(ca.Function("J", [Q], [ca.jacobian(m._num["cedra_f"](Q, u, inp, par)[0], Q)])(q))
+    R = np.array(m._num["cedra_rjac"](q, u, np.zeros_like(q), inp, par)[0])
+    assert np.max(np.abs(J + R)) < 1e-12 * np.max(np.abs(R))

@@ -35,6 +35,9 @@ matrices column-major):
     cedra_rim_samples (x[7 + TERRAIN_TIN]) -> (g[13], frame[6], d1[2])
                   the contact search's start for a wheel x = [center, axle, radius, tin]: g at the rim's 13 samples,
                   the rim's frame (r1, r2) and g' at both ends of the lower half rim (fmu_src/rim.c).
+    cedra_terrain_bounds (tin[8])       -> (bounds[2])
+                  G >= |gradient| and U >= the Hessian's largest eigenvalue over the whole terrain at these inputs
+                  (inf where the kind has none): the contact search's test for a rim with one maximum (fmu_src/rim.c).
 
 Rigid contact (contact == "rigid", the paper's decision tree) adds one function; cedra_f then holds every force
 except the contact forces, and the glue solves for accelerations and contact forces together:
@@ -88,7 +91,7 @@ CHECK_REASONS = {
 }
 
 FUNCTION_NAMES = ("cedra_M", "cedra_f", "cedra_rjac", "cedra_out", "cedra_settle", "cedra_guess", "cedra_check",
-                  "cedra_terrain", "cedra_rim_samples")
+                  "cedra_terrain", "cedra_rim_samples", "cedra_terrain_bounds")
 TERRAIN_TIN = 8         # cedra_terrain's input vector (fmu_src/rim.c: the search's x = [c, a, R, tin])
 CONTROLLER_FUNCTION_NAMES = ("cedra_sample",)
 
@@ -166,6 +169,7 @@ class ModelSpec:
             "cedra_check": ([nq, nq, ni, npar], [(1, 1)]),
             "cedra_terrain": ([2, TERRAIN_TIN], [(1, 1), (2, 1), (2, 2)]),
             "cedra_rim_samples": ([7 + TERRAIN_TIN], [(13, 1), (6, 1), (2, 1)]),
+            "cedra_terrain_bounds": ([TERRAIN_TIN], [(2, 1)]),
         }
         if self.contact == "rigid":
             nc = self.n_contacts

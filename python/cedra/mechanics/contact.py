@@ -148,13 +148,16 @@ def rim_samples_function(terrain: Terrain) -> ca.Function:
     half = (RIM_SAMPLES - 1) // 2
     g = [gfun(k * ca.pi / (2 * half))[0] for k in range(-half, half + 1)]
     ends = [gfun(-ca.pi / 2)[1], gfun(ca.pi / 2)[1]]
-    return ca.Function("cedra_rim_samples", [x], [ca.vertcat(*g), ca.vertcat(r1, r2), ca.vertcat(*ends)],
+    return ca.Function("cedra_rim_samples", [x], [ca.densify(ca.vertcat(*g)), ca.densify(ca.vertcat(r1, r2)),
+                                                  ca.densify(ca.vertcat(*ends))],
                        ["x"], ["g", "frame", "d1"], {"cse": True})
 
 
 def terrain_functions(terrain: Terrain) -> dict[str, ca.Function]:
-    """The contract's terrain functions for the C contact search: cedra_terrain and cedra_rim_samples."""
-    return {"cedra_terrain": terrain.function(), "cedra_rim_samples": rim_samples_function(terrain)}
+    """The contract's terrain functions for the C contact search: cedra_terrain, cedra_rim_samples and
+    cedra_terrain_bounds."""
+    return {"cedra_terrain": terrain.function(), "cedra_rim_samples": rim_samples_function(terrain),
+            "cedra_terrain_bounds": terrain.bounds_function()}
 
 
 def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None):

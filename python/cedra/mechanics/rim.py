@@ -7,6 +7,7 @@ implementation of the search for the FMU, the Python-side model and the tests. T
 choices and converged angles, so the model never differentiates it (cedra.mechanics.contact.rim_contacts)."""
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import os
 import subprocess
@@ -15,7 +16,9 @@ from functools import lru_cache
 from pathlib import Path
 
 import casadi as ca
+import numpy as np
 
+from cedra.contract import TERRAIN_TIN
 from cedra.mechanics.contact import rim_samples_function
 from cedra.mechanics.terrain import Terrain
 
@@ -24,6 +27,7 @@ SOURCE = REPO_ROOT / "fmu_src" / "rim.c"
 HOST_DIR = REPO_ROOT / "build" / "host"
 EXTERNAL_NAME = "cedra_rim_search"
 N_RESULT = 8            # [beta of maxima 1..3, beta of saddles 1..2, presence of maxima 1..3]
+ONE_MAXIMUM = {1: 0, 2: 0, 3: 0, 4: 0, 5: 1, 6: 0, 7: 0}     # the results where the search finds one maximum
 
 
 class RimBuildError(RuntimeError):
@@ -36,6 +40,7 @@ def _terrain_c(terrain: Terrain) -> str:
                                                        "with_header": False, "verbose": False})
         cg.add(terrain.function())
         cg.add(rim_samples_function(terrain))
+        cg.add(terrain.bounds_function())
         cg.generate(d + "/")
         return (Path(d) / "cedra_terrain_host.c").read_text()
 
@@ -70,3 +75,17 @@ def search_external(terrain: Terrain) -> ca.Function:
 
 def search_input(center, axle, radius, terrain: Terrain):
     return ca.vertcat(center, axle, radius, terrain.tin())
+
+
+def one_maximum_test(terrain: Terrain):
+    """The C search's test for a rim with one maximum (cedra_rim_one_maximum in fmu_src/rim.c), for the tests:
+    (center, axle, radius, terrain input values) -> True where the terrain's bounds prove one maximum (the search
+    then skips the samples)."""
+    fn = ctypes.CDLL(str(_library(_terrain_c(terrain)))).cedra_rim_one_maximum
+    fn.argtypes, fn.restype = [ctypes.POINTER(ctypes.c_double)], ctypes.c_int
+
+    def proven(center, axle, radius, tin) -> bool:
+        x = np.zeros(7 + TERRAIN_TIN)
+        x[0:3], x[3:6], x[6], x[7:7 + len(tin)] = center, axle, radius, tin
+        return bool(fn(x.ctypes.data_as(ctypes.POINTER(ctypes.c_double))))
+    return proven

@@ -1,6 +1,7 @@
 """Terrain kinds Z = f(X, Y) (docs/model.md, Terrain). Terrain numbers are FMU inputs, so they are symbols here."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -30,6 +31,9 @@ class TerrainKind:
     inputs: tuple[str, ...]
     height: Callable       # (X, Y, t: dict name -> SX) -> SX
     planar: bool           # a plane: the rim search's start point (beta = 0) is already exact
+    # (t) -> (G, U): over the whole plane, G >= |gradient| and U >= the Hessian's largest eigenvalue (the contact
+    # search's test for one maximum, fmu_src/rim.c); None: no such bounds (the search always samples the rim)
+    bounds: Callable | None = None
 
 
 def terrain_inputs(kind: str, dims: str) -> tuple[str, ...]:
@@ -62,6 +66,33 @@ def _stairs(X, Y, t, steps=STAIRS_STEPS):
     return sum(0.5 * t["terrain_h"] * (1 + ca.tanh((u - j * t["terrain_w"]) / t["terrain_s"])) for j in range(steps))
 
 
+# Bounds of the Gaussian profile h exp(-s^2), s = d / w, along d: |slope| <= sqrt(2) e^(-1/2) |h| / w (at
+# s^2 = 1/2); curvature (4 s^2 - 2) e^(-s^2) h / w^2 in [-2, 4 e^(-3/2)] h / w^2 (at s = 0 and s^2 = 3/2)
+_GAUSS_SLOPE, _GAUSS_CURV = math.sqrt(2 / math.e), 4 * math.exp(-1.5)
+
+
+def _gauss_bounds(t):
+    """The bump (h exp(-((X - x0)/w)^2): Hessian diag(f'', 0)) and bump3d (radially the same profile; across
+    the radius f'/r = -2 h/w^2 e^(-s^2), between 0 and -2 h/w^2): the largest eigenvalue is at most
+    max(4 e^(-3/2) h, -2 h) / w^2 either way."""
+    h, w = t["terrain_h"], t["terrain_w"]
+    return _GAUSS_SLOPE * ca.fabs(h) / w, ca.fmax(_GAUSS_CURV * h, -2 * h) / w ** 2
+
+
+def _step_bounds(t):
+    """0.5 h (1 + tanh(u / s)): slope 0.5 h/s sech^2 <= |h| / (2 s); curvature -h/s^2 tanh sech^2, at most
+    2 / (3 sqrt 3) |h| / s^2 in size."""
+    h, s = t["terrain_h"], t["terrain_s"]
+    return ca.fabs(h) / (2 * s), 2 / (3 * math.sqrt(3)) * ca.fabs(h) / s ** 2
+
+
+def _waves_bounds(t):
+    """h sin(kX) sin(kY): each gradient component at most |h| k; the Hessian's eigenvalues
+    h k^2 (-sin sin +- |cos cos|), at most |h| k^2."""
+    k = 2 * ca.pi / t["terrain_w"]
+    return math.sqrt(2) * ca.fabs(t["terrain_h"]) * k, ca.fabs(t["terrain_h"]) * k ** 2
+
+
 def _waves(X, Y, t):
     k = 2 * ca.pi / t["terrain_w"]
     return t["terrain_h"] * ca.sin(k * X) * ca.sin(k * Y)
@@ -70,10 +101,11 @@ def _waves(X, Y, t):
 KINDS = {
     "flat": TerrainKind("flat", (), lambda X, Y, t: 0 * X, True),
     "slope": TerrainKind("slope", ("terrain_slope",), lambda X, Y, t: -ca.tan(t["terrain_slope"]) * X, True),
-    "bump": TerrainKind("bump", ("terrain_h", "terrain_w", "terrain_x0"), _bump, False),
-    "bump3d": TerrainKind("bump3d", ("terrain_h", "terrain_w", "terrain_x0", "terrain_y0"), _bump3d, False),
-    "step": TerrainKind("step", ("terrain_h", "terrain_x0", "terrain_s"), _step, False),
-    "waves": TerrainKind("waves", ("terrain_h", "terrain_w"), _waves, False),
+    "bump": TerrainKind("bump", ("terrain_h", "terrain_w", "terrain_x0"), _bump, False, _gauss_bounds),
+    "bump3d": TerrainKind("bump3d", ("terrain_h", "terrain_w", "terrain_x0", "terrain_y0"), _bump3d, False,
+                          _gauss_bounds),
+    "step": TerrainKind("step", ("terrain_h", "terrain_x0", "terrain_s"), _step, False, _step_bounds),
+    "waves": TerrainKind("waves", ("terrain_h", "terrain_w"), _waves, False, _waves_bounds),
     # in 2D without terrain_y0, terrain_yaw (terrain_inputs); the number of steps is the scene's (Terrain's steps)
     "stairs": TerrainKind("stairs", ("terrain_h", "terrain_w", "terrain_x0", "terrain_s", "terrain_y0", "terrain_yaw"),
                           _stairs, False),
@@ -153,7 +185,19 @@ class Terrain:
         """cedra_terrain: (xy[2], tin[TERRAIN_TIN]) -> (h, gradient, Hessian), the terrain for C (the contract)."""
         xy, tin = ca.SX.sym("xy", 2), ca.SX.sym("tin", TERRAIN_TIN)
         h, g, H = self._f(xy[0], xy[1], *[tin[k] for k in range(self.n_inputs)])
-        return ca.Function("cedra_terrain", [xy, tin], [h, g, H], ["xy", "tin"], ["h", "grad", "hess"])
+        # dense: C reads every entry (a terrain constant in Y has no structural h_Y, h_XY, h_YY)
+        return ca.Function("cedra_terrain", [xy, tin], [ca.densify(h), ca.densify(g), ca.densify(H)], ["xy", "tin"],
+                           ["h", "grad", "hess"])
+
+    def bounds_function(self) -> ca.Function:
+        """cedra_terrain_bounds: (tin[TERRAIN_TIN]) -> (bounds[2] = [G, U]): G >= |gradient| and U >= the Hessian's
+        largest eigenvalue everywhere, at these inputs (TerrainKind.bounds); inf where the kind has none."""
+        tin = ca.SX.sym("tin", TERRAIN_TIN)
+        if self.kind.bounds is None:
+            b = ca.SX([ca.inf, ca.inf])
+        else:
+            b = ca.vertcat(*self.kind.bounds({n: tin[k] for k, n in enumerate(self.input_names)}))
+        return ca.Function("cedra_terrain_bounds", [tin], [ca.densify(b)], ["tin"], ["bounds"])
 
     def tin(self):
         """The terrain's inputs as cedra_terrain's tin (padded with zeros)."""

@@ -137,6 +137,7 @@ class CedraModel:
         self._frozen = []           # (symbol, expression) of the contact search (_freeze)
         self._searches = {}         # wheel index -> its contact search (cedra_rim_search's result)
         self._rim_search = None
+        self._one = []              # (frozen search result, its value where the wheel has one maximum)
         self.contacts = [self._wheel_contact(wh) for wh in self.rover.wheels]
         self.chassis = self._chassis_contacts() if opt.chassis else []
         self.M, self.f = self.kane.equations()
@@ -164,6 +165,31 @@ class CedraModel:
         if self._frozen:
             exprs = ca.substitute(list(exprs), [s for s, _ in self._frozen], [e for _, e in self._frozen])
         return self.terrain.resolve(exprs, derivatives)
+
+    def _contract(self, name, ins, outs, derivatives=True, one=True) -> ca.Function:
+        """The contract function name of ins -> outs, the contact search's frozen symbols put back (resolve).
+        With several contacts per wheel it first runs the searches, then evaluates one of two forms of outs: where
+        every wheel has one maximum, outs with the searches' other results put in as the constants they then are
+        (rim.ONE_MAXIMUM: the absent contacts and the saddles fold away, the same arithmetic on what remains, a
+        fraction of the work); otherwise the full form. one=False: the full form alone (the tests' reference)."""
+        if not (self._frozen and one):
+            return _function(name, ins, self.resolve(outs, derivatives))
+        body = self.terrain.resolve(outs, derivatives)
+        frozen = ca.vertcat(*[s for s, _ in self._frozen])
+        full = _function(f"{name}_all", ins + [frozen], body)
+        single = _function(f"{name}_one", ins + [frozen], ca.substitute(body, [s for s, _ in self._one],
+                                                                        [ca.SX(v) for _, v in self._one]))
+        value = {id(s): e for s, e in self._frozen}
+        flag = 1
+        for s, v in self._one:
+            flag = ca.logic_and(flag, value[id(s)] == v)
+        search = _function(f"{name}_search", [self.q, self.inp, self.par],
+                           [ca.vertcat(*[e for _, e in self._frozen]), flag])
+        mx = [ca.MX.sym(f"i{k}", x.sparsity()) for k, x in enumerate(ins)]
+        arg = {id(x): m for x, m in zip(ins, mx)}
+        r, flag = search(arg[id(self.q)], arg[id(self.inp)], arg[id(self.par)])
+        out = ca.Function.if_else(f"{name}_forms", single, full)(flag, *mx, r)
+        return ca.Function(name, mx, out if isinstance(out, (list, tuple)) else [out])
 
     def rate(self, expr):
         return ca.jtimes(expr, self.q, self.u)
@@ -234,6 +260,8 @@ class CedraModel:
                 search = self._rim_search(rim.search_input(wh.center, wh.axle, p["R_w"], self.terrain))
             self._searches[wh.index] = search
             geos, present = rim_contacts(wh.center, wh.axle, self.terrain, p["R_w"], search, self._freeze)
+            # rim_contacts froze the search's results last, in their order
+            self._one += [(self._frozen[k - rim.N_RESULT][0], v) for k, v in rim.ONE_MAXIMUM.items()]
         else:
             geos, present = [contact_geometry(wh.center, wh.axle, self.terrain, p["R_w"])], [1]
         parts = []
@@ -455,7 +483,8 @@ class CedraModel:
                 names += [f"wheel[{k + 1}] drive upper edge", f"wheel[{k + 1}] drive lower edge"]
         return s, hold, hold_now, names
 
-    def functions(self) -> dict[str, ca.Function]:
+    def functions(self, one=True) -> dict[str, ca.Function]:
+        """The contract's functions; one=False: without the one-maximum form (_contract)."""
         q, u, par, inp = self.q, self.u, self.par, self.inp
         n = q.numel()
         z = ca.SX.sym("z", 1)
@@ -484,8 +513,8 @@ class CedraModel:
         sw, hold, hold_now, _ = self.switches
         if sw:
             hv = ca.vertcat(*hold) if hold else ca.SX(0, 1)
-            fns["cedra_switch"] = _function("cedra_switch", [q, u, inp, par, hv], res_(
-                [ca.vertcat(*sw), ca.vertcat(*hold_now) if hold else ca.SX(0, 1)], derivatives=False))
+            fns["cedra_switch"] = self._contract("cedra_switch", [q, u, inp, par, hv], [
+                ca.vertcat(*sw), ca.vertcat(*hold_now) if hold else ca.SX(0, 1)], False, one)
         if self.chassis:
             Qc = self.chassis_force
             fns["cedra_cgap"] = _function("cedra_cgap", [q, inp, par], res_([self.chassis_depth], derivatives=False))
@@ -494,12 +523,12 @@ class CedraModel:
                                            res_([ca.jacobian(Qc, q), ca.jacobian(Qc, u)]))
         return fns | {
             "cedra_M": _function("cedra_M", [q, par], [self.M]),
-            "cedra_f": _function("cedra_f", [q, u, inp, par], res_([self.f, self.power], derivatives=False)),
-            "cedra_rjac": _function("cedra_rjac", [q, u, a, inp, par],
-                                      res_([ca.jacobian(r, q), ca.jacobian(r, u),
-                                            ca.jacobian(self.power, q), ca.jacobian(self.power, u)])),
-            "cedra_out": _function("cedra_out", [q, u, z, inp, par], res_([y])),
-            "cedra_settle": _function("cedra_settle", [q, inp, par], res_([res, jac])),
+            "cedra_f": self._contract("cedra_f", [q, u, inp, par], [self.f, self.power], False, one),
+            "cedra_rjac": self._contract("cedra_rjac", [q, u, a, inp, par],
+                                         [ca.jacobian(r, q), ca.jacobian(r, u),
+                                          ca.jacobian(self.power, q), ca.jacobian(self.power, u)], True, one),
+            "cedra_out": self._contract("cedra_out", [q, u, z, inp, par], [y], True, one),
+            "cedra_settle": self._contract("cedra_settle", [q, inp, par], [res, jac], True, one),
             "cedra_guess": _function("cedra_guess", [q, inp, par], [self.guess()]),
             "cedra_check": _function("cedra_check", [q, u, inp, par], [self.check()]),
         } | terrain_functions(self.terrain)
