@@ -63,7 +63,6 @@
 /* a switch is located when the step that crosses it is at most this long (s; more where time cannot resolve it) */
 #define LOC_TOL 1e-10
 #define MAX_LOCATE 4        /* locations of one switch per call (fmi2DoStep) before it is left to the error control */
-#define MAX_MISS 2          /* cuts of one switch per call that end no nearer to it before it is left likewise */
 #define LOG_LOCATED 8       /* located switches kept for the step's log */
 
 #if CEDRA_RIGID
@@ -101,7 +100,7 @@ struct model_ws {
     int swn_valid;
     long n_located;                     /* switches located since the last model_take_located */
     int sw_count[DIM(NSW)];             /* times each switch was located since then */
-    int sw_miss[DIM(NSW)];              /* cuts aimed at each switch that ended no nearer to it, since then */
+    int sw_miss[DIM(NSW)];              /* cuts aimed at each switch that ended no nearer to it (then: bisection) */
     int aim;                            /* 1 + the switch the last step was cut at (0: none) ... */
     double aim_s, aim_s1, aim_t;        /* ... its s at that step's start and end, and the cut's end */
     int loc_which[LOG_LOCATED];
@@ -482,7 +481,8 @@ double model_locate_step(void *ctx, double t, const double *x, double t_new, con
          * ended. Where s is close to linear over a step it is now far nearer to 0. An s that has not come halfway
          * (a switch function that changed its branch, say a contact slot that now holds another maximum, or one
          * that bends sharply within the step) cannot be reached by interpolation: each cut would end short of it
-         * again and the call would creep in steps of the cut's length. */
+         * again and the call would creep in steps of the cut's length. Such a switch is located by bisection for
+         * the rest of the call (below), which finds any sign change of s, continuous or not. */
         const int i = ws->aim - 1;
         if ((ws->sw0[i] > 0) == (ws->aim_s > 0) && fabs(ws->sw0[i]) > 0.5 * fabs(ws->aim_s)) ws->sw_miss[i]++;
     }
@@ -496,19 +496,18 @@ double model_locate_step(void *ctx, double t, const double *x, double t_new, con
     }
     /* A switch crossed back and forth (a force law sliding along its switch, e.g. a wheel that barely touches)
      * would be located again and again: after MAX_LOCATE locations in one call it is left to the error control
-     * for the rest of the call; so is one that MAX_MISS cuts did not bring nearer (above). */
+     * for the rest of the call. */
     for (int i = 0; i < NSW; i++)
-        if (ws->sw_count[i] >= MAX_LOCATE || ws->sw_miss[i] >= MAX_MISS) ws->sw1[i] = ws->sw0[i];
+        if (ws->sw_count[i] >= MAX_LOCATE) ws->sw1[i] = ws->sw0[i];
     int which;
     double len = solver_locate_switches(NSW, ws->sw0, ws->sw1, t, t_new, loc_tol, &which);
-    /* a retry of a step cut at this switch whose end is no nearer to it: the interpolation does not converge (s
-     * jumps inside the step): left to the error control like a switch that the cuts did not bring nearer */
-    while (retry && which >= 0 && len >= 0 && len < t_new - t && ws->aim == which + 1 &&
-           (ws->sw1[which] > 0) == (ws->aim_s1 > 0) && fabs(ws->sw1[which]) > 0.5 * fabs(ws->aim_s1)) {
-        ws->sw_miss[which] = MAX_MISS;
-        ws->sw1[which] = ws->sw0[which];
-        ws->aim = 0;
-        len = solver_locate_switches(NSW, ws->sw0, ws->sw1, t, t_new, loc_tol, &which);
+    if (which >= 0 && len >= 0 && len < t_new - t) {
+        /* a retry of a step cut at this switch whose end is no nearer to it: the interpolation does not converge
+         * either (s jumps inside the step) */
+        if (retry && ws->aim == which + 1 && (ws->sw1[which] > 0) == (ws->aim_s1 > 0) &&
+            fabs(ws->sw1[which]) > 0.5 * fabs(ws->aim_s1))
+            ws->sw_miss[which]++;
+        if (ws->sw_miss[which] > 0) len = 0.5 * (t_new - t);       /* bisection: half the step, every time */
     }
     if (which >= 0 && len >= t_new - t) {      /* accepted with the switch inside: located */
         int k = (int)(ws->n_located % LOG_LOCATED);
