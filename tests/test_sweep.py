@@ -347,6 +347,11 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, name):
         goal = 1.0 + 2.5 * p["terrain_w"]
         cx = rows[-1][[names.index(f"wheel[{i}].cx") for i in range(1, 7)]]
         assert int(np.min(cx) > goal) == int(verdicts[name]), (name, cx, goal)
+    # on a bump narrower than a bogie and taller than the bogie's segment sits (w = R_w, h = 2.4 R_w) the rover
+    # with chassis contact stops with its bogies on the bump: 'hung up', the chassis carrying load
+    hung = sw_mod.run_one(sw_mod.Path(sw_mod._build(sw, BUILD)).read_bytes(), "bump",
+                          dict(tau_max=4.0, terrain_h=2.4 * R_W, terrain_w=R_W, mu=1.0), shipped.stop_time, 60.0)
+    assert hung["status"] == "ok" and hung["verdict"] == "hung up", hung
 
 
 # ------------------------------------------------------------------ a scenario script as the run
