@@ -202,18 +202,23 @@ def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None):
     return geos, present
 
 
-def compliant_force(geo: ContactGeometry, v_point, ground_k, ground_d, mu, v_eps):
-    """Force on the wheel at the contact point (world) and its contact-frame components (Fn, Fx, Fy), the
-    tangential slip velocity's norm, and the contact flag. The paper's ground flexibility:
-    F_n = max(0, k delta - d v_n); F_t = -mu F_n v_t / sqrt(|v_t|^2 + v_eps^2)."""
-    n = geo.normal
+def compliant_law(depth, n, v_point, ground_k, ground_d, mu, v_eps):
+    """The paper's ground flexibility at a point with penetration depth, unit normal n and velocity v_point:
+    (F_n, F_t, v_n, v_t) with F_n = max(0, k delta - d v_n) (0 where delta <= 0) and
+    F_t = -mu F_n v_t / sqrt(|v_t|^2 + v_eps^2). A wheel's contacts and the chassis points share it."""
     v_n = ca.dot(v_point, n)
     v_t = v_point - v_n * n
-    in_contact = geo.depth > 0
-    Fn = ca.if_else(in_contact, ca.fmax(0, ground_k * geo.depth - ground_d * v_n), 0)
+    Fn = ca.if_else(depth > 0, ca.fmax(0, ground_k * depth - ground_d * v_n), 0)
     Ft = -mu * Fn * v_t / ca.sqrt(ca.dot(v_t, v_t) + v_eps ** 2)
-    force = Fn * n + Ft
-    return force, Fn, ca.dot(Ft, geo.frame[:, 0]), ca.dot(Ft, geo.frame[:, 1]), ca.norm_2(v_t), in_contact
+    return Fn, Ft, v_n, v_t
+
+
+def compliant_force(geo: ContactGeometry, v_point, ground_k, ground_d, mu, v_eps):
+    """Force on the wheel at the contact point (world) and its contact-frame components (Fn, Fx, Fy), the
+    tangential slip velocity's norm, and the contact flag (compliant_law)."""
+    Fn, Ft, _, v_t = compliant_law(geo.depth, geo.normal, v_point, ground_k, ground_d, mu, v_eps)
+    force = Fn * geo.normal + Ft
+    return force, Fn, ca.dot(Ft, geo.frame[:, 0]), ca.dot(Ft, geo.frame[:, 1]), ca.norm_2(v_t), geo.depth > 0
 
 
 def rim_samples(center, axle, terrain: Terrain, radius) -> list:

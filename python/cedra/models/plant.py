@@ -15,8 +15,8 @@ import casadi as ca
 import numpy as np
 
 from cedra.rover import parameters
-from cedra.mechanics.contact import (ContactGeometry, compliant_force, contact_frame, contact_geometry,
-                                     rim_contacts, slope_angle, terrain_functions)
+from cedra.mechanics.contact import (ContactGeometry, compliant_force, compliant_law, contact_frame,
+                                     contact_geometry, rim_contacts, slope_angle, terrain_functions)
 from cedra.mechanics import rim
 from cedra.mechanics.kane import KaneSystem
 from cedra.rover.mechanism import FULL_Q, IDX, describe, drive_torque
@@ -213,10 +213,7 @@ class CedraModel:
             n = n / ca.norm_2(n)
             depth = (h - pos[2]) * n[2]
             v = self.rate(pos)
-            v_n = ca.dot(v, n)
-            v_t = v - v_n * n
-            Fn = ca.if_else(depth > 0, ca.fmax(0, p["ground_k"] * depth - p["ground_d"] * v_n), 0)
-            Ft = -i_["mu"] * Fn * v_t / ca.sqrt(ca.dot(v_t, v_t) + p["v_eps"] ** 2)
+            Fn, Ft, v_n, _ = compliant_law(depth, n, v, p["ground_k"], p["ground_d"], i_["mu"], p["v_eps"])
             out.append(dict(link=pt.link, weight=weight, depth=depth, Fn=Fn, v_n=v_n,
                             Q=ca.jacobian(v, self.u).T @ (weight * (Fn * n + Ft))))
         return out
