@@ -82,6 +82,34 @@ static void fit_line(const double *z, int sz, double *c, int sc, int n, double *
     c[(n + 1) * sc] = 2.0 * c[n * sc] - c[(n - 1) * sc];
 }
 
+/* hm->bound from the coefficients: a derivative of the spline is a spline of one degree less in that direction
+ * whose coefficients are the coefficients' differences (divided by the spacing), and a spline lies between its
+ * smallest and largest coefficient (the basis is nonnegative and sums to 1). So |h_X| <= max |D_X c| / dx (the
+ * same in Y), h_XX <= max D_XX c / dx^2, h_YY <= max D_YY c / dy^2, |h_XY| <= max |D_X D_Y c| / (dx dy), and
+ * the Hessian's largest eigenvalue max_v (h_XX v1^2 + 2 h_XY v1 v2 + h_YY v2^2) is at most that of
+ * [[A, B], [B, D]] with A, D, B these bounds. Rounding: 1e-12 of the largest coefficient's size added. */
+static void derivative_bounds(heightmap *hm) {
+    int mx = hm->nx + 2, my = hm->ny + 2;
+    double gx = 0, gy = 0, A = -INFINITY, D = -INFINITY, B = 0, cmax = 0;
+    const double *c = hm->coef;
+#define C(i, j) c[(size_t)(j) * mx + (i)]
+    for (int j = 0; j < my; j++)
+        for (int i = 0; i < mx; i++) {
+            cmax = fmax(cmax, fabs(C(i, j)));
+            if (i + 1 < mx) gx = fmax(gx, fabs(C(i + 1, j) - C(i, j)));
+            if (j + 1 < my) gy = fmax(gy, fabs(C(i, j + 1) - C(i, j)));
+            if (i + 2 < mx) A = fmax(A, C(i + 2, j) - 2 * C(i + 1, j) + C(i, j));
+            if (j + 2 < my) D = fmax(D, C(i, j + 2) - 2 * C(i, j + 1) + C(i, j));
+            if (i + 1 < mx && j + 1 < my) B = fmax(B, fabs(C(i + 1, j + 1) - C(i, j + 1) - C(i + 1, j) + C(i, j)));
+        }
+#undef C
+    double eps = 1e-12 * cmax, ix = 1 / hm->dx, iy = 1 / hm->dy;
+    gx = (gx + eps) * ix, gy = (gy + eps) * iy;
+    A = (A + eps) * ix * ix, D = (D + eps) * iy * iy, B = (B + eps) * ix * iy;
+    hm->bound[0] = sqrt(gx * gx + gy * gy);
+    hm->bound[1] = 0.5 * (A + D) + sqrt(0.25 * (A - D) * (A - D) + B * B);
+}
+
 static int fit(heightmap *hm, const double *z, heightmap_alloc alloc, heightmap_free_fn fr) {
     int nx = hm->nx, ny = hm->ny, mx = nx + 2;
     double *tmp = (double *)alloc((size_t)mx * (size_t)ny, sizeof(double));   /* rows fitted along X */
@@ -111,6 +139,7 @@ static int fit(heightmap *hm, const double *z, heightmap_alloc alloc, heightmap_
             hm->cellmax[(size_t)j * (nx - 1) + i] = hi;
             hm->cellmin[(size_t)j * (nx - 1) + i] = lo;
         }
+    derivative_bounds(hm);
     return 0;
 }
 
@@ -586,6 +615,14 @@ static int outside(const double *x) {
 
 static int eval_active(const double *x, double *h, double *d1, double *d2, double *d3) {
     if (!active) return 1;
+    if (!d3) {     /* the model's evaluations (height, gradient, Hessian): the unrolled evaluation */
+        double h0, g[2], H[3];
+        if (eval_h2(active, x[0], x[1], &h0, g, H)) return outside(x);
+        if (h) *h = h0;
+        if (d1) d1[0] = g[0], d1[1] = g[1];
+        if (d2) d2[0] = H[0], d2[1] = d2[2] = H[1], d2[3] = H[2];
+        return 0;
+    }
     return heightmap_eval(active, x[0], x[1], h, d1, d2, d3) ? outside(x) : 0;
 }
 
@@ -597,6 +634,8 @@ static const casadi_int SP_2X2[] = {2, 2, 0, 2, 4, 0, 1, 0, 1};
 static const casadi_int SP_4X2[] = {4, 2, 0, 4, 8, 0, 1, 2, 3, 0, 1, 2, 3};
 static const casadi_int SP_7[] = {7, 1, 0, 7, 0, 1, 2, 3, 4, 5, 6};
 static const casadi_int SP_6[] = {6, 1, 0, 6, 0, 1, 2, 3, 4, 5};
+static const casadi_int SP_8[] = {8, 1, 0, 8, 0, 1, 2, 3, 4, 5, 6, 7};
+static const casadi_int SP_2[] = {2, 1, 0, 2, 0, 1};
 static const casadi_int SP_6X7[] = {6, 7, 0, 6, 12, 18, 24, 30, 36, 42,
                                     0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5,
                                     0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5, 0, 1, 2, 3, 4, 5};
@@ -637,6 +676,11 @@ EXTERNAL_SHAPE(jac_cedra_heightmap, 4, 3, IN1, OUT1)
 EXTERNAL_SHAPE(cedra_rim_contact, 1, 2, IN2, OUT2)
 EXTERNAL_SHAPE(cedra_rim_point, 1, 1, IN2, OUT2)
 EXTERNAL_SHAPE(jac_cedra_rim_point, 2, 1, IN3, OUT3)
+/* cedra_heightmap_bounds: (tin[8], unused: a heightmap has no terrain inputs) -> (bounds[2] = heightmap.bound):
+ * the terrain's cedra_terrain_bounds for the contact search (rim.c) */
+static const casadi_int *const IN4[] = {SP_8};
+static const casadi_int *const OUT4[] = {SP_2};
+EXTERNAL_SHAPE(cedra_heightmap_bounds, 1, 1, IN4, OUT4)
 
 static const double ORIGIN[2] = {0.0, 0.0};     /* CasADi passes NULL for an all-zero argument */
 
@@ -648,6 +692,13 @@ int cedra_heightmap(const double **arg, double **res, casadi_int *iw, double *w,
 int jac_cedra_heightmap(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
     (void)iw, (void)w, (void)mem;
     return eval_active(arg[0] ? arg[0] : ORIGIN, NULL, res[0], res[1], res[2]);
+}
+
+int cedra_heightmap_bounds(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
+    (void)arg, (void)iw, (void)w, (void)mem;
+    if (!active) return 1;
+    if (res[0]) res[0][0] = active->bound[0], res[0][1] = active->bound[1];
+    return 0;
 }
 
 static const double ZERO7[7] = {0, 0, 0, 0, 0, 0, 0};

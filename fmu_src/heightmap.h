@@ -23,6 +23,9 @@ typedef struct {
     /* (nx - 1) * (ny - 1), X fastest: the largest / smallest of the 16 coefficients a cell's patch is made of (the
      * rim search's bound on the height over a wheel's square, looked up per cell instead of scanned per search) */
     double *cellmax, *cellmin;
+    /* over the whole grid: bound[0] >= |gradient|, bound[1] >= the Hessian's largest eigenvalue (from the
+     * coefficients' differences; the contact search's test for one maximum, rim.c) */
+    double bound[2];
     char msg[256];          /* why the last evaluation failed (a point outside the grid) */
 } heightmap;
 

@@ -31,6 +31,10 @@
 #include <stddef.h>
 #include <string.h>
 
+#ifndef RIM_HOST
+#include "cedra_vars.h"         /* CEDRA_HEIGHTMAP (the Python side's host library defines it itself) */
+#endif
+
 typedef long long int casadi_int;
 
 int cedra_terrain(const double **arg, double **res, casadi_int *iw, double *w, int mem);
@@ -162,6 +166,14 @@ static int search_one(rim_ctx *k, double *r, int *one) {
     double n0[3];
     *one = 0;
     if (!proven_one(k, n0)) return 0;
+#if CEDRA_HEIGHTMAP
+    /* the heightmap's model takes a rim with one maximum from its own single-contact search (heightmap.c) and
+     * reads nothing here but the presence flags: the angle is not needed */
+    memset(r, 0, RIM_NR * sizeof *r);
+    r[5] = 1;
+    *one = 1;
+    return 0;
+#endif
     rim_frame(k, n0);
     double b = 0, g0, d1, d2;
     if (gfun(k, b, &g0, &d1, &d2)) return 1;
@@ -331,6 +343,14 @@ static unsigned memo_set(const double *x) {
 int cedra_rim_search(const double **arg, double **res, casadi_int *iw, double *w, int mem) {
     (void)iw, (void)w, (void)mem;
     const double *x = arg[0] ? arg[0] : ZERO_X;
+#ifdef RIM_HOST
+    /* the Python side's host library: no memo (on a heightmap the map is not part of x, and tests load several
+     * maps; elsewhere the Python side's evaluations are few) */
+    double r[RIM_NR];
+    if (search(x, r)) return 1;
+    if (res[0]) memcpy(res[0], r, sizeof r);
+    return 0;
+#else
     unsigned set = memo_set(x);
     rim_memo_entry *m = NULL;
     for (int way = 0; way < 2 && !m; way++) {
@@ -352,6 +372,7 @@ int cedra_rim_search(const double **arg, double **res, casadi_int *iw, double *w
     }
     if (res[0]) memcpy(res[0], m->r, sizeof m->r);
     return 0;
+#endif
 }
 
 int jac_cedra_rim_search(const double **arg, double **res, casadi_int *iw, double *w, int mem) {

@@ -80,7 +80,8 @@ def slope_angle(axle, n):
 
 
 def contact_geometry(center, axle, terrain: Terrain, radius) -> ContactGeometry:
-    """One contact per wheel: the deepest rim point (docs/model.md, Contact). Rigid scenes and the heightmap use it."""
+    """One contact per wheel: the deepest rim point (docs/model.md, Contact). Rigid scenes use it, and the heightmap
+    where its rim has one maximum (rim_contacts)."""
     if terrain.external_rim:
         # heightmap: the same search in C (one call per wheel, its derivatives exact; see terrain.Terrain)
         p, h, grad = terrain.rim_contact(center, axle, radius)
@@ -164,7 +165,7 @@ def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None):
     """The contacts of a wheel (docs/model.md, Several contacts per wheel): the local maxima of g on the lower half
     rim, up to MAX_CONTACTS ordered by beta, with the saddles between neighbours and their shared penetrations.
     Returns the contact slots (always MAX_CONTACTS; a slot without a maximum has depth ABSENT_DEPTH) and their
-    presence flags. Planar terrain and the heightmap: one contact (contact_geometry).
+    presence flags. Planar terrain: one contact (contact_geometry).
 
     search: the result of the C search (cedra.mechanics.rim: r[8] = beta of maxima 1..3, of saddles 1..2,
     presence 1..3) for this wheel. freeze(expr) -> symbol: the caller stands a free symbol in for expr and puts
@@ -173,7 +174,7 @@ def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None):
     what the implicit function theorem gives), a saddle's height as g at its angle (stationary: its derivative
     is the partial one). Every choice of the search is a piecewise-constant start for Newton, so the forces are
     continuous wherever it converges (the exhaustive search in the tests holds it to 1e-9 m)."""
-    if terrain.planar or terrain.external_rim:
+    if terrain.planar:
         geo = contact_geometry(center, axle, terrain, radius)
         absent = ContactGeometry(geo.point, geo.normal, geo.frame, ca.SX(ABSENT_DEPTH), geo.slope)
         return [geo] + [absent] * (MAX_CONTACTS - 1), [1] + [0] * (MAX_CONTACTS - 1)
@@ -199,6 +200,15 @@ def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None):
         n = terrain.normal(p[0], p[1])
         depth = ca.if_else(present[k], share * n[2], ABSENT_DEPTH)
         geos.append(ContactGeometry(p, n, contact_frame(axle, n), depth, slope_angle(axle, n)))
+    if terrain.external_rim:
+        # the heightmap: where the rim has one maximum, the single-contact C search gives that maximum with its
+        # exact derivatives in one call (terrain.Terrain), far cheaper than the terrain's external evaluated and
+        # differentiated along the Newton step above; the form with one maximum (rim.ONE_MAXIMUM) keeps only it
+        one = contact_geometry(center, axle, terrain, radius)
+        single = count == 1
+        geos[0] = ContactGeometry(*[ca.if_else(single, a, b) for a, b in zip(
+            (one.point, one.normal, one.frame, one.depth, one.slope),
+            (geos[0].point, geos[0].normal, geos[0].frame, geos[0].depth, geos[0].slope))])
     return geos, present
 
 

@@ -33,6 +33,7 @@ HOST_DIR = REPO_ROOT / "build" / "host"
 EXTERNAL_NAME = "cedra_heightmap"
 RIM_EXTERNAL_NAME = "cedra_rim_contact"
 RIM_POINT_EXTERNAL_NAME = "cedra_rim_point"        # the same without the Jacobian
+BOUNDS_EXTERNAL_NAME = "cedra_heightmap_bounds"
 RESOURCE_NAME = "heightmap.txt"      # the file's name inside the FMU's resources/
 
 
@@ -126,3 +127,10 @@ def rim_external(jacobian: bool = True) -> ca.Function:
     x -> e alone."""
     _ctypes_lib()
     return ca.external(RIM_EXTERNAL_NAME if jacobian else RIM_POINT_EXTERNAL_NAME, str(host_library()))
+
+
+def bounds_external() -> ca.Function:
+    """cedra_heightmap_bounds: (tin[8], unused) -> (bounds[2]): over the whole active map, |gradient| <= bounds[0]
+    and the Hessian's largest eigenvalue <= bounds[1] (fmu_src/heightmap.c: derivative_bounds)."""
+    _ctypes_lib()
+    return ca.external(BOUNDS_EXTERNAL_NAME, str(host_library()))

@@ -19,6 +19,7 @@ import casadi as ca
 import numpy as np
 
 from cedra.contract import TERRAIN_TIN
+from cedra.mechanics import heightmap
 from cedra.mechanics.contact import rim_samples_function
 from cedra.mechanics.terrain import Terrain
 
@@ -46,9 +47,19 @@ def _terrain_c(terrain: Terrain) -> str:
 
 
 @lru_cache(maxsize=None)
-def _library(code: str) -> Path:
+def _library(code: str, on_heightmap: bool = False) -> Path:
+    """rim.c and the terrain's generated code as a shared library. on_heightmap: the terrain calls the heightmap's
+    external functions, which this library takes from the heightmap's host library (the one process-wide map,
+    cedra.mechanics.heightmap), and a rim proven to have one maximum returns its presence flags alone, as in a
+    heightmap scene's FMU (CEDRA_HEIGHTMAP: the model takes that maximum from the heightmap's own search).
+    No memo here (RIM_HOST)."""
     rim = SOURCE.read_bytes()
-    lib = HOST_DIR / f"libcedra_rim_{hashlib.sha256(rim + code.encode()).hexdigest()[:16]}.so"
+    extra = ["-DRIM_HOST", f"-DCEDRA_HEIGHTMAP={int(on_heightmap)}"]
+    if on_heightmap:
+        hm = heightmap.host_library()
+        extra += [str(hm), f"-Wl,-rpath,{hm.parent}"]
+    key = rim + code.encode() + " ".join(extra).encode()
+    lib = HOST_DIR / f"libcedra_rim_{hashlib.sha256(key).hexdigest()[:16]}.so"
     if not lib.exists():
         HOST_DIR.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory() as d:
@@ -59,7 +70,7 @@ def _library(code: str) -> Path:
             # -Bsymbolic: rim.c calls this library's own cedra_terrain, whatever other library is loaded
             cmd = ["gcc", "-std=c99", "-O2", "-fPIC", "-shared", "-Wl,-Bsymbolic", "-Wall", "-Wextra", "-Werror",
                    "-Wno-unused-parameter", "-Wno-unused-variable", "-Wno-unused-function",
-                   "-Wno-unused-but-set-variable", "-Wno-sign-compare", str(SOURCE), str(src), "-o", tmp, "-lm"]
+                   "-Wno-unused-but-set-variable", "-Wno-sign-compare", str(SOURCE), str(src), "-o", tmp, *extra, "-lm"]
             r = subprocess.run(cmd, capture_output=True, text=True)
             if r.returncode != 0:
                 os.unlink(tmp)
@@ -68,9 +79,16 @@ def _library(code: str) -> Path:
     return lib
 
 
+def _host(terrain: Terrain) -> Path:
+    on_heightmap = terrain.kind.name == "heightmap"
+    if on_heightmap:
+        heightmap.external()        # the host library loaded first: this library's dependency is that object
+    return _library(_terrain_c(terrain), on_heightmap)
+
+
 def search_external(terrain: Terrain) -> ca.Function:
     """cedra_rim_search for this terrain: (x[15] = [center, axle, radius, terrain inputs padded]) -> (r[8])."""
-    return ca.external(EXTERNAL_NAME, str(_library(_terrain_c(terrain))))
+    return ca.external(EXTERNAL_NAME, str(_host(terrain)))
 
 
 def search_input(center, axle, radius, terrain: Terrain):
@@ -81,7 +99,7 @@ def one_maximum_test(terrain: Terrain):
     """The C search's test for a rim with one maximum (cedra_rim_one_maximum in fmu_src/rim.c), for the tests:
     (center, axle, radius, terrain input values) -> True where the terrain's bounds prove one maximum (the search
     then skips the samples)."""
-    fn = ctypes.CDLL(str(_library(_terrain_c(terrain)))).cedra_rim_one_maximum
+    fn = ctypes.CDLL(str(_host(terrain))).cedra_rim_one_maximum
     fn.argtypes, fn.restype = [ctypes.POINTER(ctypes.c_double)], ctypes.c_int
 
     def proven(center, axle, radius, tin) -> bool:

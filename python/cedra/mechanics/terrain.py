@@ -193,7 +193,9 @@ class Terrain:
         """cedra_terrain_bounds: (tin[TERRAIN_TIN]) -> (bounds[2] = [G, U]): G >= |gradient| and U >= the Hessian's
         largest eigenvalue everywhere, at these inputs (TerrainKind.bounds); inf where the kind has none."""
         tin = ca.SX.sym("tin", TERRAIN_TIN)
-        if self.kind.bounds is None:
+        if self.kind.name == "heightmap":
+            b = heightmap.bounds_external()(tin)
+        elif self.kind.bounds is None:
             b = ca.SX([ca.inf, ca.inf])
         else:
             b = ca.vertcat(*self.kind.bounds({n: tin[k] for k, n in enumerate(self.input_names)}))

@@ -112,6 +112,7 @@ class CedraModel:
         if opt.drives and opt.locked_wheels:
             raise ValueError("drives need spinning wheels (locked_wheels is set)")
         self.rigid = opt.contact == "rigid"
+        self.symbolic_rim = symbolic_rim
         self.opt = opt
         self.q_names, self.P = projection(opt)
         n = len(self.q_names)
@@ -232,9 +233,10 @@ class CedraModel:
 
     @property
     def multi_contact(self) -> bool:
-        """Several contacts per wheel (docs/model.md, Several contacts per wheel): compliant contact on a curved analytic terrain. Planar
-        terrain has one contact exactly; the heightmap's C search and rigid contact keep one (the deepest)."""
-        return not self.rigid and not self.terrain.planar and self.opt.terrain != "heightmap"
+        """Several contacts per wheel (docs/model.md, Several contacts per wheel): compliant contact on a curved
+        terrain, analytic or the heightmap (symbolic_rim aside: the tests' reference of the single-contact search).
+        Planar terrain has one contact exactly; rigid contact keeps one (the deepest)."""
+        return not self.rigid and not self.terrain.planar and not self.symbolic_rim
 
     def _wheel_contact(self, wh) -> dict:
         """A wheel's contacts, their forces added to Kane's equations, and the wheel's totals in the per-wheel
