@@ -145,10 +145,12 @@ static int fit(heightmap *hm, const double *z, heightmap_alloc alloc, heightmap_
 
 int heightmap_read(heightmap *hm, const char *path, heightmap_alloc alloc, heightmap_free_fn fr, char *msg,
                    size_t msg_len) {
+    static unsigned long long last_id;
     reader r = {NULL, 1, {0}};
     double head[6], *z = NULL;
     int rc = 1;
     memset(hm, 0, sizeof *hm);
+    hm->id = __sync_add_and_fetch(&last_id, 1);     /* instances may be made in several threads at once */
     r.f = fopen(path, "r");
     if (!r.f) {
         snprintf(msg, msg_len, "cannot open the heightmap %s: %s", path, strerror(errno));
@@ -603,6 +605,8 @@ void heightmap_activate(heightmap *hm, heightmap_memo *memo) {
     active = hm;
     active_memo = hm ? memo : NULL;
 }
+
+unsigned long long heightmap_active_id(void) { return active ? active->id : 0; }
 
 static int outside(const double *x) {
     snprintf(active->msg, sizeof active->msg,

@@ -26,6 +26,7 @@ typedef struct {
     /* over the whole grid: bound[0] >= |gradient|, bound[1] >= the Hessian's largest eigenvalue (from the
      * coefficients' differences; the contact search's test for one maximum, rim.c) */
     double bound[2];
+    unsigned long long id;  /* this map among every map read in the process (1, 2, ...): caches key on it */
     char msg[256];          /* why the last evaluation failed (a point outside the grid) */
 } heightmap;
 
@@ -44,6 +45,8 @@ size_t heightmap_memo_size(void);
 
 /* the map the external functions evaluate in this thread (NULL: they fail), and its memo (NULL: none) */
 void heightmap_activate(heightmap *hm, heightmap_memo *memo);
+/* the active map's id (0: none): what the contact search's memo (rim.c) keys on besides the wheel */
+unsigned long long heightmap_active_id(void);
 
 /* height and derivatives at (X, Y): d1 = [h_X, h_Y], d2 = [h_XX, h_YX, h_XY, h_YY] (column-major Hessian),
  * d3 = d vec(Hessian) / d[X, Y] (4 x 2 column-major); any of them may be NULL. 0, or 1 outside the grid. */

@@ -34,6 +34,9 @@
 #ifndef RIM_HOST
 #include "cedra_vars.h"         /* CEDRA_HEIGHTMAP (the Python side's host library defines it itself) */
 #endif
+#if CEDRA_HEIGHTMAP
+#include "heightmap.h"          /* heightmap_active_id: the memo's key besides the wheel */
+#endif
 
 typedef long long int casadi_int;
 
@@ -316,7 +319,7 @@ const casadi_int *jac_cedra_rim_search_sparsity_out(casadi_int i) { return i == 
 
 static const double ZERO_X[RIM_NX];     /* CasADi passes NULL for an all-zero argument */
 
-/* The recent searches of this thread, by their exact input: an implicit solver's Jacobian is taken at the
+/* The recent searches of this thread, by their exact input (and map): an implicit solver's Jacobian is taken at the
  * state where it just evaluated the right-hand side, and the switching functions at the end of a step are the
  * next step's start, so a pose is searched several times in a row. A pure cache: the result for a given x is
  * the same whichever instance or call asked first, so it changes no result and needs no per-instance state.
@@ -324,6 +327,7 @@ static const double ZERO_X[RIM_NX];     /* CasADi passes NULL for an all-zero ar
 #define RIM_MEMO_SETS_BITS 5
 typedef struct {
     double x[RIM_NX], r[RIM_NR];
+    unsigned long long map;     /* a heightmap scene: the map searched (instances may read different grids) */
     int used;
 } rim_memo_entry;
 static __thread struct {
@@ -353,9 +357,14 @@ int cedra_rim_search(const double **arg, double **res, casadi_int *iw, double *w
 #else
     unsigned set = memo_set(x);
     rim_memo_entry *m = NULL;
+#if CEDRA_HEIGHTMAP
+    unsigned long long map = heightmap_active_id();
+#else
+    unsigned long long map = 0;
+#endif
     for (int way = 0; way < 2 && !m; way++) {
         rim_memo_entry *e = &memo.e[set][way];
-        if (e->used && memcmp(e->x, x, sizeof e->x) == 0) {
+        if (e->used && e->map == map && memcmp(e->x, x, sizeof e->x) == 0) {
             m = e;
             memo.recent[set] = (unsigned char)way;
         }
@@ -367,6 +376,7 @@ int cedra_rim_search(const double **arg, double **res, casadi_int *iw, double *w
         m = &memo.e[set][way];
         memcpy(m->x, x, sizeof m->x);
         memcpy(m->r, r, sizeof r);
+        m->map = map;
         m->used = 1;
         memo.recent[set] = (unsigned char)way;
     }
