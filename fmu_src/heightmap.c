@@ -385,7 +385,7 @@ static void cross3(const double *a, const double *b, double *c) {
     c[2] = a[0] * b[1] - a[1] * b[0];
 }
 
-#define RIM_NEWTON 4
+#define RIM_ITER 40         /* evaluations of the polish at most: a bounded cost */
 
 /* The largest height of the patch of the cell that holds (X, Y) on the grid (the cell eval_h uses): at most its
  * largest B-spline coefficient, the basis being nonnegative and summing to 1 up to rounding. */
@@ -471,9 +471,15 @@ static int rim_search(const heightmap *hm, const double x[7], rim_final *f, doub
         double g = h - p[2];
         if (kk == 0 || g > best_g) best_b = b, best_g = g;
     }
-    /* Newton on g'(beta) = 0, never toward a minimum (a step only where g'' < 0); then the final point */
+    /* The maximum of g in the best sample's bracket [best - pi/12, best + pi/12] (within the half rim):
+     * safeguarded Newton on g'(beta) = 0, a step that leaves the bracket or meets g'' >= 0 replaced by bisection
+     * on the sign of g' (the contact search's polish, rim.c), to convergence or RIM_ITER evaluations; where g
+     * rises toward an end of the half rim the end is the maximum. Converged, the point is the rim's maximum
+     * whatever sample started it, so it does not jump when the best sample changes (on sharp terrain 4 plain
+     * Newton steps did not converge, and the force jumped with the start). */
     double b = best_b, p[3], h, *dp = f->dp, *g = f->g, *H = f->H, d1 = 0.0, d2 = 0.0, cb = 0.0, sb = 0.0;
-    for (int it = 0; it <= RIM_NEWTON; it++) {
+    double lo = fmax(best_b - pi / 12, -pi / 2), hi = fmin(best_b + pi / 12, pi / 2);
+    for (int it = 0;; it++) {
         cb = cos(b), sb = sin(b);
         for (int i = 0; i < 3; i++) {
             p[i] = c[i] + R * (cb * r1[i] + sb * r2[i]);
@@ -487,15 +493,23 @@ static int rim_search(const heightmap *hm, const double x[7], rim_final *f, doub
         d1 = g[0] * dp[0] + g[1] * dp[1] - dp[2];
         d2 = dp[0] * (H[0] * dp[0] + H[1] * dp[1]) + dp[1] * (H[1] * dp[0] + H[2] * dp[1]) + g[0] * ddp[0] +
              g[1] * ddp[1] - ddp[2];
-        if (it == RIM_NEWTON) break;                  /* the final point: p, h, g, H, d2 are its */
-        /* where beta does not move (no step, or a step below its last bit) every later step evaluates this point
-         * again and moves nothing: this point is the final one, exactly as after all RIM_NEWTON steps */
-        if (!(d2 < 0)) break;
-        double next = b - d1 / d2;
-        if (next == b) break;
+        if (it == RIM_ITER || d1 == 0) break;        /* the final point: p, h, g, H, d2 are its */
+        if (d1 > 0) lo = b;
+        else hi = b;
+        double next = 0.5 * (lo + hi);
+        int newton_step = 0;
+        if (d2 < 0) {
+            double newton = b - d1 / d2;
+            if (newton >= lo && newton <= hi) next = newton, newton_step = 1;
+        }
+        /* converged: a Newton step below 1e-13 rad leaves an error of order 1e-26; an end where g rises toward
+         * it, or a bracket down to rounding, cannot move b */
+        if (next == b || (newton_step && fabs(next - b) < 1e-13) || hi - lo <= 4 * 2.2e-16 * fmax(1.0, fabs(b)))
+            break;
         b = next;
     }
-    f->cb = cb, f->sb = sb, f->d2 = d2;
+    /* an end of the half rim where g still rises is no stationary point: its angle is a constant (rim_jacobian) */
+    f->cb = cb, f->sb = sb, f->d2 = fabs(b) < pi / 2 - 1e-12 ? d2 : 0.0;
     f->e[0] = p[0], f->e[1] = p[1], f->e[2] = p[2], f->e[3] = h, f->e[4] = g[0], f->e[5] = g[1];
     return 0;
 }
@@ -503,9 +517,8 @@ static int rim_search(const heightmap *hm, const double x[7], rim_final *f, doub
 /* The Jacobian d e / d x, x = [c, a, R]. At the final beta where g'' < 0 the point is the rim's tangency
  * point (g'(beta) = 0): the implicit function theorem gives d beta = -(d g' at fixed beta) / g'', so p's
  * derivative is the derivative of the stationary point itself, whatever frame beta is measured in (exact
- * when Newton has converged, which 4 steps from the best of 13 samples do to rounding on smooth ground).
- * Where g'' >= 0 no step was taken: beta is a sample, constant, and p moves with the frame (r1 follows the
- * normal under the center: its Hessian). */
+ * at convergence, which the polish reaches). At an end of the half rim, or where g'' >= 0, beta is held
+ * constant and p moves with the frame (r1 follows the normal under the center: its Hessian). */
 static void rim_jacobian(const double x[7], const rim_final *f, double *J) {
     const double *a = x + 3, R = x[6], *H0 = f->H0, *n0 = f->n0, *r1 = f->r1, *r2 = f->r2, *dp = f->dp;
     const double *g = f->g, *H = f->H, cb = f->cb, sb = f->sb, mn = f->mn, na = f->na, tn = f->tn, d2 = f->d2;
@@ -661,8 +674,8 @@ static const casadi_int *const IN1[] = {SP_X, SP_1, SP_X, SP_2X2};
 static const casadi_int *const OUT1[] = {SP_1X2, SP_2X2, SP_4X2};
 
 /* cedra_rim_contact: (x[7] = [wheel center c, unit axle a, radius R]) -> (e[6] = [p, h(p), h_X(p), h_Y(p)],
- * J[6x7] = de/dx): the wheel's contact point p (docs/model.md, Contact: the 13-sample rim search and 4 Newton steps, in
- * C, heightmap_rim) with the terrain's height and gradient there, and their exact derivative with respect to the
+ * J[6x7] = de/dx): the wheel's contact point p (docs/model.md, Contact: the best of 13 samples polished to the
+ * maximum, in C, heightmap_rim) with the terrain's height and gradient there, and their exact derivative with respect to the
  * wheel's pose (implicit function theorem at the tangency point). The model uses J explicitly
  * (cedra.mechanics.terrain: the contact's chain rule), so nothing differentiates this function. cedra_rim_point:
  * the same without J (the functions that hold no derivative, cedra_f above all). */

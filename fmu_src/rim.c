@@ -9,11 +9,12 @@
  * convergence). The terrain is the scene's generated cedra_terrain: (xy[2], tin[8]) -> (h, gradient[2],
  * Hessian[2x2]).
  *
- * The search: g at 13 angles beta_j = (j - 6) pi/12; a sample is a maximum where it is >= its left neighbour and
- * > its right one (an end where g rises toward it); the first three maxima by beta are kept; each is polished by
- * safeguarded Newton on g' = 0 inside its samples' bracket (a Newton step that leaves the bracket or meets g'' of
- * the wrong sign is replaced by bisection), started from the vertex of the samples' parabola; each saddle from
- * the lowest sample between two kept maxima the same way. At most RIM_ITER iterations each: a bounded cost.
+ * The search: g at 13 angles beta_j = (j - 6) pi/12 (on a heightmap each arc near touching sampled again, see
+ * RIM_BAND); a sample is a maximum where it is >= its left neighbour and > its right one (an end where g rises
+ * toward it); the three highest maxima are kept; each is polished by safeguarded Newton on g' = 0 inside its
+ * samples' bracket (a Newton step that leaves the bracket or meets g'' of the wrong sign is replaced by
+ * bisection), started from the vertex of the samples' parabola; each saddle from the lowest sample between two
+ * kept maxima the same way. At most RIM_ITER iterations each: a bounded cost.
  *
  * One maximum, proven (search_one): with G >= |gradient f| and U >= the largest eigenvalue of f's Hessian over
  * the whole terrain (the scene's generated cedra_terrain_bounds), every stationary point of g on the half rim is
@@ -242,6 +243,22 @@ int cedra_rim_one_maximum(const double *x) {
     return proven_one(&k, n0);
 }
 
+/* A heightmap's spline can hold features between the 15-degree samples (a block's edge, the spline's ripple
+ * beside it): an arc whose end samples lie within RIM_BAND of touching (g > -RIM_BAND) is sampled again at
+ * RIM_SPLIT equal parts. Analytic terrains keep the 13 samples (their features are wider than an arc). */
+#define RIM_BAND 0.002
+#define RIM_SPLIT 8
+#define RIM_MAXS (RIM_NSAMPLE + (RIM_NSAMPLE - 1) * (RIM_SPLIT - 1))
+
+/* the vertex of the parabola through three samples (any spacing), where it bends the extremum's way */
+static double vertex3(const double *b, const double *g, int maximum) {
+    if (b[1] - b[0] == b[2] - b[1]) return vertex(b[1], b[1] - b[0], g[0], g[1], g[2], maximum);
+    double d1 = (g[1] - g[0]) / (b[1] - b[0]), d2 = (g[2] - g[1]) / (b[2] - b[1]);
+    double curv = (d2 - d1) / (b[2] - b[0]);
+    if (maximum ? !(curv < 0) : !(curv > 0)) return b[1];
+    return 0.5 * (b[0] + b[1]) - 0.5 * d1 / curv;
+}
+
 static int search(const double *x, double *r) {
     rim_ctx k;
     if (!work_fits()) return 1;
@@ -252,34 +269,55 @@ static int search(const double *x, double *r) {
     /* the samples, the frame (beta = 0 along the normal under the center projected into the rim's plane) and
      * g' at both ends, from the scene's generated cedra_rim_samples (straight-line code) */
     const double pi = 3.14159265358979323846, step = pi / 12;
-    double beta[RIM_NSAMPLE], gs[RIM_NSAMPLE], frame[6], d1_end[2];
+    double coarse[RIM_NSAMPLE], frame[6], d1_end[2];
     k.arg[0] = x;
-    k.res[0] = gs;
+    k.res[0] = coarse;
     k.res[1] = frame;
     k.res[2] = d1_end;
     if (cedra_rim_samples(k.arg, k.res, k.iw, k.w, 0)) return 1;
-    for (int j = 0; j < RIM_NSAMPLE; j++) {
-        beta[j] = (j - 6) * step;
-        if (!isfinite(gs[j])) return 1;
-    }
+    for (int j = 0; j < RIM_NSAMPLE; j++)
+        if (!isfinite(coarse[j])) return 1;
     for (int i = 0; i < 3; i++) k.r1[i] = frame[i], k.r2[i] = frame[3 + i];
-    int idx[RIM_MAXC], nmax = 0;
-    for (int j = 0; j < RIM_NSAMPLE && nmax < RIM_MAXC; j++) {
+    double beta[RIM_MAXS], gs[RIM_MAXS];
+    int n = 0;
+    for (int j = 0; j < RIM_NSAMPLE; j++) {
+        beta[n] = (j - 6) * step;
+        gs[n++] = coarse[j];
+#if CEDRA_HEIGHTMAP
+        if (j + 1 < RIM_NSAMPLE && fmax(coarse[j], coarse[j + 1]) > -RIM_BAND)
+            for (int m = 1; m < RIM_SPLIT; m++) {
+                double d1, d2;
+                beta[n] = (j - 6 + (double)m / RIM_SPLIT) * step;
+                if (gfun(&k, beta[n], &gs[n], &d1, &d2)) return 1;
+                n++;
+            }
+#endif
+    }
+    /* the maxima of the samples (a sample >= its left neighbour and > its right one; an end where g rises toward
+     * it): the RIM_MAXC highest are kept (the deepest contacts), in their order by beta */
+    int idx[RIM_MAXS], nmax = 0;
+    for (int j = 0; j < n; j++) {
         int left = j == 0 || gs[j] >= gs[j - 1];
-        int right = j == RIM_NSAMPLE - 1 || gs[j] > gs[j + 1];
+        int right = j == n - 1 || gs[j] > gs[j + 1];
         if (left && right) idx[nmax++] = j;
+    }
+    while (nmax > RIM_MAXC) {          /* drop the lowest */
+        int low = 0;
+        for (int m2 = 1; m2 < nmax; m2++)
+            if (gs[idx[m2]] < gs[idx[low]]) low = m2;
+        for (int m2 = low; m2 + 1 < nmax; m2++) idx[m2] = idx[m2 + 1];
+        nmax--;
     }
     memset(r, 0, RIM_NR * sizeof *r);
     for (int m2 = 0; m2 < nmax; m2++) {
         int j = idx[m2];
         double b;
-        if ((j == 0 && d1_end[0] < 0) || (j == RIM_NSAMPLE - 1 && d1_end[1] > 0)) {
+        if ((j == 0 && d1_end[0] < 0) || (j == n - 1 && d1_end[1] > 0)) {
             b = beta[j];                               /* g rises toward the end: the end is the maximum */
         } else {
-            int jl = j > 0 ? j - 1 : 0, jh = j < RIM_NSAMPLE - 1 ? j + 1 : RIM_NSAMPLE - 1;
+            int jl = j > 0 ? j - 1 : 0, jh = j < n - 1 ? j + 1 : n - 1;
             double lo = beta[jl], hi = beta[jh];
-            double start = (j > 0 && j < RIM_NSAMPLE - 1) ? vertex(beta[j], step, gs[j - 1], gs[j], gs[j + 1], 1)
-                                                           : beta[j];
+            double start = (j > 0 && j < n - 1) ? vertex3(beta + j - 1, gs + j - 1, 1) : beta[j];
             if (polish(&k, fmin(hi, fmax(lo, start)), lo, hi, 1, &b)) return 1;
         }
         r[m2] = b;
@@ -290,8 +328,8 @@ static int search(const double *x, double *r) {
         for (int j = idx[m2] + 1; j < idx[m2 + 1]; j++)
             if (lowest < 0 || gs[j] < gs[lowest]) lowest = j;
         if (lowest < 0) return 1;                      /* two maxima are never neighbouring samples */
-        double lo = beta[lowest] - step, hi = beta[lowest] + step, b;
-        double start = vertex(beta[lowest], step, gs[lowest - 1], gs[lowest], gs[lowest + 1], 0);
+        double lo = beta[lowest - 1], hi = beta[lowest + 1], b;
+        double start = vertex3(beta + lowest - 1, gs + lowest - 1, 0);
         if (polish(&k, fmin(hi, fmax(lo, start)), lo, hi, 0, &b)) return 1;
         r[3 + m2] = b;
     }

@@ -2,7 +2,8 @@
 
 - The search agrees with an exhaustive one (tests/contact_reference.py: g every 0.01 degree, every maximum and
   saddle polished by Newton) to 1e-9 m in every delta_k: at wheel positions around a sharp step's corner and edge,
-  and at the states of the shipped runs on curved terrain (bump2d, step2d, bump3d, stairs2d: every 0.25 s).
+  and at the states of the shipped runs on curved terrain (bump2d, step2d, bump3d, stairs2d, and the heightmaps
+  hills3d and rubble3d: every 0.25 s).
 - A wheel center driven along a path into the corner of ground and face and up over the edge: the wheel's total
   force is continuous (its largest jump between path points shrinks with the path's spacing) and equals the sum
   of its contacts.
@@ -259,7 +260,7 @@ def run_states(scene, seconds):
 
 
 @pytest.mark.parametrize("scene, seconds", [("bump2d", 15.0), ("step2d", 15.0), ("bump3d", 15.0), ("stairs2d", 20.0),
-                                            ("hills3d", 15.0)])
+                                            ("hills3d", 15.0), ("rubble3d", 7.5)])
 def test_search_is_exhaustive_on_the_shipped_runs(scene, seconds):
     sc, states = run_states(scene, seconds)
     values = {q.name: q.start for q in sc.spec().inputs} | sc.inputs
@@ -267,6 +268,31 @@ def test_search_is_exhaustive_on_the_shipped_runs(scene, seconds):
     near = [(c, a) for c, a in states if max(wheel.reference_depths(c, a) or [-1]) > -0.01]
     worst, two = assert_search_exact(wheel, [c for c, _ in near], [a for _, a in near])
     print(f"{scene}: worst {worst:.1e} m over {len(near)} wheel poses near the ground, {two} with several contacts")
+
+
+def test_search_is_exhaustive_on_the_rubble_blocks():
+    """The shipped rubble (a heightmap of blocks with smoothed edges, whose spline has ripples of ~0.5 mm beside
+    the edges): 150 wheel poses around the blocks, each touching, tilted and turned at random: every delta_k
+    within 1e-9 m of the exhaustive search's (rim.c samples the arcs near touching again on a heightmap)."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
+    import rubble
+    wheel = Wheel("heightmap", {}, "3d", load_shipped("rubble3d").options.heightmap)
+    rng = np.random.default_rng(5)
+    blocks, centers, axles = rubble.blocks(), [], []
+    while len(centers) < 150:
+        x, y = blocks[rng.integers(len(blocks))][:2]
+        c = np.array([x + rng.uniform(-0.15, 0.15), y + rng.uniform(-0.15, 0.15), 0.0])
+        c[2] = 0.065 + float(rubble.heights(c[0], c[1])) + rng.uniform(-0.002, 0.03)
+        yaw, tilt = rng.uniform(-np.pi, np.pi), rng.normal(scale=0.1)
+        a = np.array([-np.sin(yaw) * np.cos(tilt), np.cos(yaw) * np.cos(tilt), np.sin(tilt)])
+        if np.any(touching(wheel.reference_depths(c, a)) > 0):
+            centers.append(c)
+            axles.append(a)
+    worst, two = assert_search_exact(wheel, centers, axles)
+    print(f"rubble: worst {worst:.1e} m over {len(centers)} touching poses, {two} with several contacts")
+    assert two >= 3                     # the blocks did give wheels several contacts
 
 
 def touching_poses(wheel, xs, rng, n, tilt=0.0, ys=(0.0, 0.0)):

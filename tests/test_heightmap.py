@@ -19,6 +19,7 @@ from cedra.models.plant import CedraModel, ModelOptions
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples"))
 import hills  # noqa: E402
+import rubble  # noqa: E402
 
 
 def natural_spline_2d(xs, ys, Z, X, Y):
@@ -145,14 +146,15 @@ def test_scene_errors_name_file_and_key(tmp_path):
         assert str(path) in str(e.value) and reason in str(e.value), str(e.value)
 
 
-def test_shipped_grid_is_what_the_example_makes():
-    X, Y, Z = hills.grid()
-    lines = [ln for ln in hills.SHIPPED.read_text().splitlines() if not ln.startswith("#")]
+@pytest.mark.parametrize("example, rounding", [(hills, 1e-9), (rubble, 1e-6)])
+def test_shipped_grid_is_what_the_example_makes(example, rounding):
+    X, Y, Z = example.grid()
+    lines = [ln for ln in example.SHIPPED.read_text().splitlines() if not ln.startswith("#")]
     assert lines[0] == "cedra-heightmap 1"
     nx, ny, x0, y0, dx, dy = map(float, lines[1].split())
-    assert (nx, ny, x0, y0, dx, dy) == (len(X), len(Y), X[0], Y[0], hills.GRID["dx"], hills.GRID["dy"])
+    assert (nx, ny, x0, y0, dx, dy) == (len(X), len(Y), X[0], Y[0], example.GRID["dx"], example.GRID["dy"])
     shipped = np.array([[float(v) for v in ln.split()] for ln in lines[2:]])
-    assert np.max(np.abs(shipped - Z)) < 1e-9
+    assert np.max(np.abs(shipped - Z)) <= 0.5 * rounding * (1 + 1e-9)
 
 
 def test_model_on_a_heightmap_plane_equals_the_analytic_slope(tmp_path):
@@ -328,9 +330,10 @@ def test_model_jacobian_matches_finite_differences(hills_models):
 
 def test_c_rim_search_on_rough_ground_equals_the_symbolic_search(tmp_path):
     """On a rough random grid (bumps as high as the wheel's radius within a few cells: the best sample often
-    not at the bottom, g'' >= 0 at some, steep faces) the C search's point equals contact.rim_point's, formed
-    symbolically through the point external, and its Jacobian equals CasADi's derivative of that search where the
-    search converged (a Newton step taken at the end)."""
+    not at the bottom, g'' >= 0 at some, steep faces) the C search (the best sample polished to its maximum)
+    against contact.rim_point's 4 plain Newton steps, formed symbolically through the point external: where those
+    converged (almost always) the same point to 1e-12 m and CasADi's derivative of the 4 steps equals the implicit
+    function theorem's."""
     from cedra.mechanics.contact import rim_point
     from cedra.mechanics.terrain import Terrain
     rng = np.random.default_rng(21)
@@ -341,7 +344,7 @@ def test_c_rim_search_on_rough_ground_equals_the_symbolic_search(tmp_path):
     p = rim_point(x[0:3], x[3:6], terrain, x[6])
     sym = ca.Function("rim", [x], [p, ca.jacobian(p, x)])
     ext = heightmap.rim_external()
-    n_off_bottom = n_compared = 0
+    n_off_bottom = n_compared = n_shallower = 0
     for _ in range(200):
         c = np.array([*rng.uniform(-0.2, 0.2, 2), 0.0])
         c[2] = float(terrain.height(c[0], c[1])) + rng.uniform(-0.02, 0.06)
@@ -350,14 +353,16 @@ def test_c_rim_search_on_rough_ground_equals_the_symbolic_search(tmp_path):
         xv = np.concatenate([c, a, [0.065]])
         e, J = (np.array(v) for v in ext(xv))
         ps, Js = (np.array(v) for v in sym(xv))
-        assert np.max(np.abs(e[:3].ravel() - ps.ravel())) < 1e-15
+        g_c, g_s = e[3, 0] - e[2, 0], float(terrain.height(ps[0], ps[1])) - ps[2, 0]
+        n_shallower += g_c < g_s - 1e-15
         n_off_bottom += abs(e[2, 0] - c[2] + 0.065) > 5e-3
-        # the derivative: where Newton converged (the usual case) the implicit function theorem's is CasADi's
-        # derivative of the 4 steps; where 4 steps did not converge they differ (1 case of 200 here)
-        if np.max(np.abs(J[:3] - Js)) < 1e-9 * max(1.0, np.max(np.abs(Js))):
+        if np.max(np.abs(e[:3].ravel() - ps.ravel())) < 1e-12 and \
+                np.max(np.abs(J[:3] - Js)) < 1e-9 * max(1.0, np.max(np.abs(Js))):
             n_compared += 1
     assert n_off_bottom > 100           # the rough ground did move the contact away from the rim's bottom
     assert n_compared >= 195
+    # the polish keeps to the best sample's bracket; unbounded Newton steps may land on another, deeper maximum
+    assert n_shallower <= 5
 
 
 def test_cedra_f_is_differentiable_once_through_the_rim_point(hills_models):

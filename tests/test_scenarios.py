@@ -23,6 +23,7 @@ SHORT = {   # scenario -> (stop time, files it must write; the 3D ones a view.ht
     "step_climb": (3.0, ["equal_torques.csv", "inverse_kinematics.csv", "compare.png", f"equal_torques_{VIDEO}",
                          f"inverse_kinematics_{VIDEO}", "equal_torques_view.html", "inverse_kinematics_view.html"]),
     "drop": (1.0, ["drop.csv", "drop.png", "view.html"]),
+    "rubble": (2.0, ["rubble.csv", "path.png", "view.html"]),
 }
 
 

@@ -31,6 +31,12 @@ CFLAGS = ["-std=c99", "-O2", "-fPIC", "-Wall", "-Wextra", "-Werror", "-fvisibili
 # same results bit for bit (no fast-math: IEEE order kept). The generated model stays at -O2: -O3 took 50 % longer
 # to compile it and gained nothing measurable.
 HAND_WRITTEN_CFLAGS = ["-O3"]
+# A generated model above LARGE_MODEL_BYTES of C (the 3D scenes with chassis points and several contacts per wheel:
+# ~10 MB) is compiled at -O1: GCC's -O2 passes grow worse than linearly in a function's size on CasADi's
+# straight-line code. rubble3d (9.8 MB): `python -m cedra build rubble3d` 188 s -> 97 s, the CPU of 10 s of its
+# main job (cedra.run.simulate.run_bump) 3.38 -> 3.52 s (best of 2 each).
+LARGE_MODEL_BYTES = 8_000_000
+LARGE_MODEL_FLAGS = ["-O1"]
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 GENERATED_C = "cedra_model.c"
 # the hand-written headers of each kind of block (the C files: modelDescription/generate.py SOURCE_FILES)
@@ -114,7 +120,11 @@ def build_fmu(spec: ModelSpec, build_dir, extra_cflags=()) -> Path:
     # compile
     objects = []
     for f in c_files:
-        own = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="] if f == GENERATED_C else HAND_WRITTEN_CFLAGS
+        own = HAND_WRITTEN_CFLAGS
+        if f == GENERATED_C:
+            own = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="]
+            if (src / f).stat().st_size > LARGE_MODEL_BYTES:
+                own += LARGE_MODEL_FLAGS
         flags = CFLAGS + own + list(extra_cflags)
         o = obj / (Path(f).stem + ".o")
         _run([CC, *flags, "-I", str(src), "-c", str(src / f), "-o", str(o)], cwd=tree)
