@@ -21,6 +21,7 @@ FMU (no switch location, other compiler flags) builds it from this tree's source
     chassis     docs/equations.md    CPU and steps of step2d's and stairs3d's runs (the chassis points gated)
     mujoco      docs/benchmarks.md   MuJoCo's force spikes on height fields where the ground is flat
     sizes       docs/scenes.md       the generated functions' sizes of every shipped scene, time to derive them
+    mass        docs/solvers.md      the mass matrix's Cholesky work in the generator's order against dense
 
 Figures are printed and written, never asserted on. CPU times are time.process_time, the least of REPEAT runs
 where a figure says so.
@@ -528,6 +529,43 @@ def fig_sizes(ctx) -> str:
                      "chassis forces", "derive + functions"], rows)
 
 
+def _cholesky_work(pattern: np.ndarray, order: list[int]) -> int:
+    """Multiply-adds of a Cholesky factor of a matrix with this nonzero pattern eliminated in this order that skips
+    the entries that stay zero: L[i, j] -= L[i, k] L[j, k] for k < j <= i where both are nonzero (fill included)."""
+    g = pattern[np.ix_(order, order)].copy()
+    n = len(g)
+    L = np.zeros_like(g)
+    for j in range(n):                        # the factor's pattern, column by column (symbolic factorization)
+        col = g[j:, j].copy()
+        for k in range(j):
+            if L[j, k]:
+                col |= L[j:, k]
+        L[j:, j] = col
+    return int(sum(np.count_nonzero(L[i, :j] & L[j, :j]) for j in range(n) for i in range(j, n)))
+
+
+def fig_mass(ctx) -> str:
+    """The mass matrix's Cholesky work (fmu_src/linalg.c skips the entries that stay zero) in the generator's
+    minimum-degree order (cedra.fmu.mass_order, CEDRA_M_ORDER) against the dense factor, per shipped 3D scene and
+    bump2d."""
+    from cedra.fmu import mass_order
+    from cedra.models.scene import load_shipped
+    rows = []
+    for name in ("bump2d", "flat3d", "hills3d", "stairs3d"):
+        spec = load_shipped(name).spec()
+        pattern = mass_order.nonzero_pattern(spec)
+        n = len(pattern)
+        order = mass_order.elimination_order(spec)
+        work, natural = _cholesky_work(pattern, order), _cholesky_work(pattern, list(range(n)))
+        dense = _cholesky_work(np.ones_like(pattern), list(range(n)))
+        zeros = int(n * n - np.count_nonzero(pattern))
+        rows.append([name, str(n), f"{zeros} of {n * n}", str(work), str(natural), str(dense)])
+        ctx.log(f"mass: {name}: {work} multiply-adds in the generator's order, {natural} in the coordinates' order, "
+                f"{dense} dense ({zeros} of {n * n} entries zero)")
+    return md_table(["scene", "coordinates", "zeros of M (pattern)", "multiply-adds, CEDRA_M_ORDER",
+                     "in the coordinates' order", "dense"], rows)
+
+
 FIGURES = {    # name: (function, the page that quotes it, expected time on two cores)
     "fmpy": (fig_fmpy, "fmu.md", "10 s"),
     "masters": (fig_masters, "fmu.md", "30 s"),
@@ -539,6 +577,7 @@ FIGURES = {    # name: (function, the page that quotes it, expected time on two 
     "chassis": (fig_chassis, "equations.md", "30 s"),
     "mujoco": (fig_mujoco, "benchmarks.md", "15 s"),
     "sizes": (fig_sizes, "scenes.md", "30 s"),
+    "mass": (fig_mass, "solvers.md", "15 s"),
 }
 
 
