@@ -18,6 +18,7 @@ FMU (no switch location, other compiler flags) builds it from this tree's source
     switch      docs/solvers.md      the cost of one cedra_switch and one cedra_f evaluation (step2d, bump3d)
     ros34pw2    docs/solvers.md      bump3d's closed loop: ros34pw2 and rodas4 at tol 1e-6 against tol 1e-9
     rigid       docs/rigid-contact.md  Moreau-Jean's energy balance; the held-mode integration of the rigid run
+    compare     docs/rigid-contact.md  `python -m cedra compare`'s runs: what the page reads from compare.csv
     chassis     docs/equations.md    CPU and steps of step2d's and stairs3d's runs (the chassis points gated)
     mujoco      docs/benchmarks.md   MuJoCo's force spikes on height fields where the ground is flat
     sizes       docs/scenes.md       the generated functions' sizes of every shipped scene, time to derive them
@@ -426,6 +427,55 @@ def fig_rigid(ctx) -> str:
                                "last switch (s)"], rows))
 
 
+def fig_compare(ctx) -> str:
+    """`python -m cedra compare`'s two runs (cedra.run.simulate.run_bump, the paper's 15 s run, bump2d and
+    bump2d_rigid at their defaults) and what docs/rigid-contact.md reads from them: body.x and torques against each
+    other, the rigid modes' switches (changes of wheel[i].mode between samples, wheels 1, 2, 5, 6: the 2D wheels
+    3, 4 repeat 1, 2), the wheel loads at the end, the drift of touching wheels, the peaks of the sampled and the
+    mean normal forces, the rigid run's wall time."""
+    from cedra.run.compare import SHOWN, drift
+    from cedra.run.simulate import run_bump
+    nc, rc, tc, ic = run_bump(fmu_path(ctx.build, "bump2d"), 15.0)
+    nr, rr, tr, ir = run_bump(fmu_path(ctx.build, "bump2d_rigid"), 15.0, extra=[f"wheel[{i}].gap" for i in range(1, 7)])
+    n = min(len(rc), len(rr))
+    rc, rr, tc, tr = rc[:n], rr[:n], tc[:n], tr[:n]
+    t = rc[:, 0]
+
+    def col(names, rows, name):
+        return rows[:, names.index(name)]
+
+    dx = np.abs(col(nr, rr, "body.x") - col(nc, rc, "body.x"))
+    modes = np.stack([col(nr, rr, f"wheel[{i}].mode") for i in SHOWN], axis=1)
+    changed = np.diff(modes, axis=0) != 0
+    n_sw = int(changed.sum())
+    last = float(t[1:][changed.any(axis=1)][-1]) if n_sw else math.nan
+    fn_r = np.stack([col(nr, rr, f"wheel[{i}].Fn") for i in SHOWN], axis=1)
+    fn_c = np.stack([col(nc, rc, f"wheel[{i}].Fn") for i in SHOWN], axis=1)
+    mean_r = np.stack([col(nr, rr, f"wheel[{i}].Fn_mean") for i in SHOWN], axis=1)
+    kr, wr = np.unravel_index(np.argmax(fn_r), fn_r.shape)
+    km, wm = np.unravel_index(np.argmax(mean_r), mean_r.shape)
+    rows = [["body.x: largest difference over the run", f"{dx.max() * 1e3:.1f} mm"],
+            ["body.x at the end, rigid / compliant",
+             f"{col(nr, rr, 'body.x')[-1]:.4f} / {col(nc, rc, 'body.x')[-1]:.4f} m"],
+            ["torques: largest difference; peak |tau| rigid / compliant",
+             f"{np.abs(tr - tc).max():.2f} N.m; {np.abs(tr).max():.2f} / {np.abs(tc).max():.2f} N.m"],
+            ["rigid modes: switches (wheels 1, 2, 5, 6), the last at", f"{n_sw}, t = {last:.2f} s"],
+            ["rigid modes at the end (wheels 1, 2, 5, 6; 1 stick, 2 slip)", " / ".join(f"{m:g}" for m in modes[-1])],
+            ["loads at the end, rigid (wheels 1, 2, 5, 6)", " / ".join(f"{v:.1f}" for v in fn_r[-1]) + " N"],
+            ["loads at the end, compliant", " / ".join(f"{v:.1f}" for v in fn_c[-1]) + " N"],
+            ["rigid: largest drift |gap| of touching wheels", f"{drift(nr, rr):.2g} m"],
+            ["rigid: peak sampled wheel[i].Fn", f"{fn_r[kr, wr]:.1f} N (wheel {SHOWN[wr]} at t = {t[kr]:.2f} s)"],
+            ["compliant: peak sampled wheel[i].Fn", f"{fn_c.max():.1f} N"],
+            ["rigid: peak wheel[i].Fn_mean", f"{mean_r[km, wm]:.1f} N (wheel {SHOWN[wm]} over the 0.01 s to t = "
+                                              f"{t[km]:.2f} s; its sampled Fn there {fn_r[km, wm]:.1f} N)"],
+            ["compliant: that wheel's Fn at that sample and the next",
+             " / ".join(f"{v:.1f}" for v in fn_c[km:km + 2, wm]) + " N"],
+            ["wall time, rigid / compliant (perf_counter of run_bump)", f"{ir['wall']:.2f} / {ic['wall']:.2f} s"]]
+    for what, v in rows:
+        ctx.log(f"compare: {what}: {v}")
+    return md_table(["what", "measured"], rows)
+
+
 # ------------------------------------------------------------------ docs/equations.md
 def fig_chassis(ctx) -> str:
     """The runs that have chassis contact: step2d's paper's run (15 s, least of REPEAT) and stairs3d as
@@ -577,17 +627,18 @@ def fig_mass(ctx) -> str:
 
 
 FIGURES = {    # name: (function, the page that quotes it, expected time on two cores)
-    "fmpy": (fig_fmpy, "fmu.md", "10 s"),
-    "masters": (fig_masters, "fmu.md", "30 s"),
-    "location": (fig_location, "solvers.md", "2 min"),
-    "flags": (fig_flags, "solvers.md", "4 min"),
-    "switch": (fig_switch, "solvers.md", "20 s"),
-    "ros34pw2": (fig_ros34pw2, "solvers.md", "10 s"),
-    "rigid": (fig_rigid, "rigid-contact.md", "15 s"),
-    "chassis": (fig_chassis, "equations.md", "30 s"),
-    "mujoco": (fig_mujoco, "benchmarks.md", "15 s"),
-    "sizes": (fig_sizes, "scenes.md", "30 s"),
-    "mass": (fig_mass, "solvers.md", "15 s"),
+    "fmpy": (fig_fmpy, "fmu.md", "5 s"),
+    "masters": (fig_masters, "fmu.md", "5 s"),
+    "location": (fig_location, "solvers.md", "80 s"),
+    "flags": (fig_flags, "solvers.md", "3 min"),
+    "switch": (fig_switch, "solvers.md", "30 s"),
+    "ros34pw2": (fig_ros34pw2, "solvers.md", "5 s"),
+    "rigid": (fig_rigid, "rigid-contact.md", "10 s"),
+    "compare": (fig_compare, "rigid-contact.md", "10 s"),
+    "chassis": (fig_chassis, "equations.md", "15 s"),
+    "mujoco": (fig_mujoco, "benchmarks.md", "10 s"),
+    "sizes": (fig_sizes, "scenes.md", "15 s"),
+    "mass": (fig_mass, "solvers.md", "10 s"),
 }
 
 
