@@ -39,7 +39,7 @@ def test_site_builds_without_warnings(tmp_path):
     assert "WARNING" not in r.stderr, r.stderr
     for page in ("index", "getting-started", "fmu", "model", "equations", "scenes", "rigid-contact", "solvers",
                  "reports", "scenarios", "benchmarks", "reliability", "developing", "api", "changelog",
-                 "reference/index", "reference/bump2d", "reference/drive3d"):
+                 "reference/index", "reference/bump2d", "reference/drive3d", "reports/figures"):
         assert (out / f"{page}.html").exists(), page
 
 

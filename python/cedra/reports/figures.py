@@ -463,7 +463,7 @@ def fig_compare(ctx) -> str:
             ["rigid modes at the end (wheels 1, 2, 5, 6; 1 stick, 2 slip)", " / ".join(f"{m:g}" for m in modes[-1])],
             ["loads at the end, rigid (wheels 1, 2, 5, 6)", " / ".join(f"{v:.1f}" for v in fn_r[-1]) + " N"],
             ["loads at the end, compliant", " / ".join(f"{v:.1f}" for v in fn_c[-1]) + " N"],
-            ["rigid: largest drift |gap| of touching wheels", f"{drift(nr, rr):.2g} m"],
+            ["rigid: largest drift |gap| of touching wheels", f"{drift(nr, rr):.3g} m"],
             ["rigid: peak sampled wheel[i].Fn", f"{fn_r[kr, wr]:.1f} N (wheel {SHOWN[wr]} at t = {t[kr]:.2f} s)"],
             ["compliant: peak sampled wheel[i].Fn", f"{fn_c.max():.1f} N"],
             ["rigid: peak wheel[i].Fn_mean", f"{mean_r[km, wm]:.1f} N (wheel {SHOWN[wm]} over the 0.01 s to t = "
