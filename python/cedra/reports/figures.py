@@ -677,7 +677,8 @@ def main(args) -> int:
     ctx.out.mkdir(parents=True, exist_ok=True)
     suffix = "" if not getattr(args, "figure", None) else "-" + "-".join(names)
     path = ctx.out / f"figures{suffix}.md"
-    path.write_text("# Figures of the documentation\n\n" + made_by + "\n\n" + "\n".join(sections))
+    title = "Figures of the documentation" + (f": {', '.join(names)}" if getattr(args, "figure", None) else "")
+    path.write_text(f"# {title}\n\n" + made_by + "\n\n" + "\n".join(sections))
     print(f"wrote {path}")
     return 0
 
