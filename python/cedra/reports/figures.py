@@ -20,6 +20,7 @@ FMU (no switch location, other compiler flags) builds it from this tree's source
     rigid       docs/rigid-contact.md  Moreau-Jean's energy balance; the held-mode integration of the rigid run
     compare     docs/rigid-contact.md  `python -m cedra compare`'s runs: what the page reads from compare.csv
     chassis     docs/equations.md    CPU and steps of step2d's and stairs3d's runs (the chassis points gated)
+    bench       docs/benchmarks.md   the first two parts of `python -m cedra bench`, the contact search linked in
     mujoco      docs/benchmarks.md   MuJoCo's force spikes on height fields where the ground is flat
     sizes       docs/scenes.md       the generated functions' sizes of every shipped scene, time to derive them
     mass        docs/solvers.md      the mass matrix's Cholesky work in the generator's order against dense
@@ -387,6 +388,49 @@ def fig_ros34pw2(ctx) -> str:
             + md_table(["run", "max d body.x (m)", "max dFn (N)", "steps", "end"], rows))
 
 
+def fig_bench(ctx) -> str:
+    """The first two parts of `python -m cedra bench` (cedra.reports.bench.bench_scene, bench_contact: 10 s of
+    bump2d and flat3d against scipy Radau, the per-call cost of the generated C; the bump run with both contact
+    models), with the generated C compiled as the FMU links it: bench_scene's own compile leaves out the analytic
+    terrain's contact search (fmu_src/rim.c), which bump2d's functions call."""
+    from cedra.reports import bench
+    stop = 10.0
+    rows = []
+    compile_functions = bench.compile_functions
+    bench.compile_functions = _compile_with_rim
+    try:
+        for name in bench.SCENES:
+            o = bench.bench_scene(name, ctx.build, stop)
+            rtf = o["fmu_reached"] / o["fmu_wall"] if o.get("fmu_ok") else math.nan
+            rows.append([name, f"{o['t_M'] * 1e6:.2f} us", f"{o['t_f'] * 1e6:.2f} us", f"{o['t_jac'] * 1e6:.2f} us",
+                         f"{o['fmu_wall']:.3f} s", f"{rtf:.1f}",
+                         f"{o['fmu_steps']} / {o['fmu_rejected']} / {o['fmu_evals']}",
+                         f"{o['peer_wall']:.2f} s" + ("" if o["peer_ok"] else " (failed)"),
+                         f"x{o['peer_wall'] / o['fmu_wall']:.1f}"])
+            ctx.log(f"bench: {name}: {rows[-1]}")
+    finally:
+        bench.compile_functions = compile_functions
+    text = (f"{stop:g} s simulated, communication step 0.01 s, the scene's default solver, the precision report's "
+            "input schedule; one evaluation of the generated C (gcc -O2, mapped calls); the peer on the same "
+            "equations: scipy Radau with the exact Jacobian, rtol = atol = the FMU's tol.\n\n"
+            + md_table(["scene", "cedra_M", "cedra_f", "Jacobian (cedra_rjac)", "FMU wall", "real-time factor",
+                        "steps / rejected / rhs evals", "Radau wall", "Radau / FMU"], rows))
+    contact = bench.bench_contact(ctx.build, stop)
+    crow = []
+    for label, r in contact.items():
+        if r is None:
+            crow.append([label, "not built", "", "", ""])
+            continue
+        ratio = r["wall"] / contact["bump2d"]["wall"] if contact.get("bump2d") else math.nan
+        crow.append([label, f"{r['wall']:.3f} s", f"{r['reached'] / r['wall']:.1f}",
+                     f"{r['steps']} / {r['rejected']} / {r['evals']}", f"x{ratio:.2f}"])
+        ctx.log(f"bench: contact {label}: {crow[-1]}")
+    return text + (f"\n\nContact models: the bump run ({stop:g} s, the main job's speed controller), each scene at its "
+                   "defaults (bump2d_rigid: Moreau-Jean) and bump2d_rigid with dopri5 on held modes:\n\n"
+                   + md_table(["run", "wall", "real-time factor", "steps / rejected / rhs evals",
+                               "wall / compliant"], crow))
+
+
 # ------------------------------------------------------------------ docs/rigid-contact.md
 def fig_rigid(ctx) -> str:
     """bump2d_rigid under the paper's closed loop. Moreau-Jean (15 s): the largest rise of kinetic + potential -
@@ -639,6 +683,7 @@ FIGURES = {    # name: (function, the page that quotes it, expected time on two 
     "mujoco": (fig_mujoco, "benchmarks.md", "10 s"),
     "sizes": (fig_sizes, "scenes.md", "15 s"),
     "mass": (fig_mass, "solvers.md", "10 s"),
+    "bench": (fig_bench, "benchmarks.md", "1 min"),
 }
 
 
