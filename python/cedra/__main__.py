@@ -98,6 +98,8 @@ def cmd_report(args):
         from cedra.reports import precision as r
     elif args.which == "defaults":
         from cedra.reports import defaults as r
+    elif args.which == "figures":
+        from cedra.reports import figures as r
     else:
         from cedra.reports import stability as r
     return r.main(args)
@@ -150,8 +152,8 @@ def main(argv=None):
     be.add_argument("--step-cost", action="store_true",
                     help="only the cost of one implicit step: rodas4 dense against reduced (Schur) stage solve, "
                          "ros34pw2")
-    r = sub.add_parser("report", help="work-precision or stability report")
-    r.add_argument("which", choices=["precision", "stability", "defaults"])
+    r = sub.add_parser("report", help="work-precision, stability, defaults report, or the docs' other figures")
+    r.add_argument("which", choices=["precision", "stability", "defaults", "figures"])
     r.add_argument("--build", default="build")
     r.add_argument("--out", default="out/report")
     r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")
@@ -163,6 +165,8 @@ def main(argv=None):
     r.add_argument("--method", choices=list(SOLVER_METHODS),
                    help="defaults: compare this solver (at the scene's tolerance, or --tol) instead of the defaults")
     r.add_argument("--h-max", type=float, help="defaults: with this solver.h_max (rk4's and moreau's fixed step)")
+    r.add_argument("--figure", action="append", default=None,
+                   help="figures: only this figure (repeatable; cedra.reports.figures lists them)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
     from cedra.run.watch import add_parser as add_watch_parser

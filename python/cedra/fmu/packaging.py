@@ -23,13 +23,12 @@ from cedra.fmu.reference import html_page
 REPO_ROOT = Path(__file__).resolve().parents[3]
 FMU_SRC = REPO_ROOT / "fmu_src"
 CC = "gcc"
-# -fno-math-errno (nothing reads errno after a math call): sqrt and friends inline in the generated model, bump2d's
-# main job 0.356 -> 0.253 s CPU, the same results bit for bit; it costs compile time (hills3d's generated C 17.9 ->
-# 25.7 s), paid once per build.
+# -fno-math-errno (nothing reads errno after a math call): sqrt and friends inline, the same results bit for bit
+# (`python -m cedra report figures --figure flags` measures this and the other flags' CPU).
 CFLAGS = ["-std=c99", "-O2", "-fPIC", "-Wall", "-Wextra", "-Werror", "-fvisibility=hidden", "-fno-math-errno"]
-# The hand-written C (the solvers, the heightmap's search, the linear algebra) at -O3: 4 % less CPU on hills3d, the
-# same results bit for bit (no fast-math: IEEE order kept). The generated model stays at -O2: -O3 took 50 % longer
-# to compile it and gained nothing measurable.
+# The hand-written C (the solvers, the heightmap's search, the linear algebra) at -O3: a few per cent less CPU on
+# hills3d, the same results bit for bit (no fast-math: IEEE order kept). The generated model stays at -O2: -O3
+# compiled it slower and gained nothing measurable.
 HAND_WRITTEN_CFLAGS = ["-O3"]
 # A generated model above LARGE_MODEL_BYTES of C (the 3D scenes with chassis points and several contacts per wheel:
 # ~10 MB) is compiled at -O1: GCC's -O2 passes grow worse than linearly in a function's size on CasADi's
