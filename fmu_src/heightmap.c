@@ -675,8 +675,8 @@ static const casadi_int *const OUT1[] = {SP_1X2, SP_2X2, SP_4X2};
 
 /* cedra_rim_contact: (x[7] = [wheel center c, unit axle a, radius R]) -> (e[6] = [p, h(p), h_X(p), h_Y(p)],
  * J[6x7] = de/dx): the wheel's contact point p (docs/model.md, Contact: the best of 13 samples polished to the
- * maximum, in C, heightmap_rim) with the terrain's height and gradient there, and their exact derivative with respect to the
- * wheel's pose (implicit function theorem at the tangency point). The model uses J explicitly
+ * maximum, in C, heightmap_rim) with the terrain's height and gradient there, and their exact derivative with
+ * respect to the wheel's pose (implicit function theorem at the tangency point). The model uses J explicitly
  * (cedra.mechanics.terrain: the contact's chain rule), so nothing differentiates this function. cedra_rim_point:
  * the same without J (the functions that hold no derivative, cedra_f above all). */
 static const casadi_int *const IN2[] = {SP_7};
