@@ -33,18 +33,24 @@ import numpy as np
 from cedra.reports.common import SOLVER_CODES
 
 SCENES = ("bump2d", "flat3d")
-CFLAGS = ["-O2", "-fPIC", "-shared"]
+CFLAGS = ["-O2", "-fPIC", "-shared", "-fno-math-errno"]
+RIM_FUNCTIONS = ("cedra_terrain", "cedra_rim_samples", "cedra_terrain_bounds")    # what fmu_src/rim.c calls
+RIM_SOURCE = Path(__file__).resolve().parents[3] / "fmu_src" / "rim.c"
 
 
 def compile_functions(fns: dict, names, workdir: Path) -> dict:
     """The named CasADi functions as C (CasADi's code generator), compiled with gcc into one shared library,
-    loaded back with casadi.external."""
+    loaded back with casadi.external. A scene with an analytic terrain's contact search (the functions call
+    cedra_rim_search) gets fmu_src/rim.c and the terrain functions it calls linked in, as its FMU does (without
+    the FMU's memo of searches: RIM_HOST). Heightmap scenes are not supported (their terrain is the FMU's)."""
+    rim = [n for n in RIM_FUNCTIONS if n in fns]
     cg = ca.CodeGenerator("bench_fns.c", {"with_header": False})
-    for n in names:
+    for n in list(names) + rim:
         cg.add(fns[n])
     src = Path(cg.generate(str(workdir) + "/"))
     lib = workdir / "bench_fns.so"
-    subprocess.run(["gcc", *CFLAGS, str(src), "-o", str(lib), "-lm"], check=True, capture_output=True)
+    extra = ["-DRIM_HOST", "-DCEDRA_HEIGHTMAP=0", str(RIM_SOURCE)] if rim else []
+    subprocess.run(["gcc", *CFLAGS, str(src), *extra, "-o", str(lib), "-lm"], check=True, capture_output=True)
     return {n: ca.external(n, str(lib)) for n in names}
 
 

@@ -329,7 +329,7 @@ def fig_switch(ctx) -> str:
     times in one mapped call: cedra.reports.bench.time_per_call), at the settled start moving at 0.2 m/s."""
     import tempfile
     from cedra.models.scene import load_shipped
-    from cedra.reports.bench import time_per_call
+    from cedra.reports.bench import compile_functions, time_per_call
     from cedra.reports.common import Problem
     rows = []
     for scene in ("step2d", "bump3d"):
@@ -340,34 +340,13 @@ def fig_switch(ctx) -> str:
         inp = prob.inp0
         nh = prob.spec.n_hold
         with tempfile.TemporaryDirectory() as d:
-            ext = _compile_with_rim(prob.fns, ["cedra_switch", "cedra_f"], Path(d))
+            ext = compile_functions(prob.fns, ["cedra_switch", "cedra_f"], Path(d))
             t_sw = time_per_call(ext["cedra_switch"], [q0, u, inp, prob.par, np.zeros(nh)])
             t_f = time_per_call(ext["cedra_f"], [q0, u, inp, prob.par])
         rows.append([scene, str(len(prob.spec.switch_names)), f"{t_sw * 1e6:.2f}", f"{t_f * 1e6:.2f}"])
         ctx.log(f"switch: {scene}: cedra_switch {t_sw * 1e6:.2f} us ({len(prob.spec.switch_names)} switching "
                 f"functions), cedra_f {t_f * 1e6:.2f} us")
     return md_table(["scene", "switching functions", "cedra_switch (us per call)", "cedra_f (us per call)"], rows)
-
-
-RIM_FUNCTIONS = ("cedra_terrain", "cedra_rim_samples", "cedra_terrain_bounds")    # what fmu_src/rim.c calls
-
-
-def _compile_with_rim(fns: dict, names, workdir: Path) -> dict:
-    """cedra.reports.bench.compile_functions, with the analytic terrain's rim search linked in (fmu_src/rim.c and
-    the generated functions it calls, where the scene has them), as the FMU links them, gcc -O2."""
-    import subprocess
-    import casadi as ca
-    from cedra.reports.bench import CFLAGS
-    rim = [n for n in RIM_FUNCTIONS if n in fns]
-    cg = ca.CodeGenerator("figure_fns.c", {"with_header": False})
-    for n in list(names) + rim:
-        cg.add(fns[n])
-    src = Path(cg.generate(str(workdir) + "/"))
-    lib = workdir / "figure_fns.so"
-    extra = [str(Path(__file__).resolve().parents[3] / "fmu_src" / "rim.c")] if rim else []
-    subprocess.run(["gcc", *CFLAGS, "-fno-math-errno", str(src), *extra, "-o", str(lib), "-lm"], check=True,
-                   capture_output=True)
-    return {n: ca.external(n, str(lib)) for n in names}
 
 
 def fig_ros34pw2(ctx) -> str:
@@ -391,25 +370,19 @@ def fig_ros34pw2(ctx) -> str:
 def fig_bench(ctx) -> str:
     """The first two parts of `python -m cedra bench` (cedra.reports.bench.bench_scene, bench_contact: 10 s of
     bump2d and flat3d against scipy Radau, the per-call cost of the generated C; the bump run with both contact
-    models), with the generated C compiled as the FMU links it: bench_scene's own compile leaves out the analytic
-    terrain's contact search (fmu_src/rim.c), which bump2d's functions call."""
+    models)."""
     from cedra.reports import bench
     stop = 10.0
     rows = []
-    compile_functions = bench.compile_functions
-    bench.compile_functions = _compile_with_rim
-    try:
-        for name in bench.SCENES:
-            o = bench.bench_scene(name, ctx.build, stop)
-            rtf = o["fmu_reached"] / o["fmu_wall"] if o.get("fmu_ok") else math.nan
-            rows.append([name, f"{o['t_M'] * 1e6:.2f} us", f"{o['t_f'] * 1e6:.2f} us", f"{o['t_jac'] * 1e6:.2f} us",
-                         f"{o['fmu_wall']:.3f} s", f"{rtf:.1f}",
-                         f"{o['fmu_steps']} / {o['fmu_rejected']} / {o['fmu_evals']}",
-                         f"{o['peer_wall']:.2f} s" + ("" if o["peer_ok"] else " (failed)"),
-                         f"x{o['peer_wall'] / o['fmu_wall']:.1f}"])
-            ctx.log(f"bench: {name}: {rows[-1]}")
-    finally:
-        bench.compile_functions = compile_functions
+    for name in bench.SCENES:
+        o = bench.bench_scene(name, ctx.build, stop)
+        rtf = o["fmu_reached"] / o["fmu_wall"] if o.get("fmu_ok") else math.nan
+        rows.append([name, f"{o['t_M'] * 1e6:.2f} us", f"{o['t_f'] * 1e6:.2f} us", f"{o['t_jac'] * 1e6:.2f} us",
+                     f"{o['fmu_wall']:.3f} s", f"{rtf:.1f}",
+                     f"{o['fmu_steps']} / {o['fmu_rejected']} / {o['fmu_evals']}",
+                     f"{o['peer_wall']:.2f} s" + ("" if o["peer_ok"] else " (failed)"),
+                     f"x{o['peer_wall'] / o['fmu_wall']:.1f}"])
+        ctx.log(f"bench: {name}: {rows[-1]}")
     text = (f"{stop:g} s simulated, communication step 0.01 s, the scene's default solver, the precision report's "
             "input schedule; one evaluation of the generated C (gcc -O2, mapped calls); the peer on the same "
             "equations: scipy Radau with the exact Jacobian, rtol = atol = the FMU's tol.\n\n"
