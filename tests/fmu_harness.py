@@ -13,6 +13,24 @@ STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 _BUILT: dict[str, Path] = {}
 
 
+REPO = Path(__file__).resolve().parents[1]
+
+
+def shipped_fmu(name: str, tmp_path_factory) -> Path:
+    """build/<name>.fmu of a shipped scene or drive controller: ./build.sh makes them before the tests (CI); built
+    here (once per process) when missing."""
+    built = REPO / "build" / f"{name}.fmu"
+    if built.exists():
+        return built
+    if name not in _BUILT:
+        from cedra.fmu.packaging import build_fmu
+        from cedra.models.controller import CONTROLLERS, controller_spec
+        from cedra.models.scene import load_shipped
+        spec = controller_spec(CONTROLLERS[name]) if name in CONTROLLERS else load_shipped(name).spec()
+        _BUILT[name] = Path(build_fmu(spec, tmp_path_factory.mktemp(name)))
+    return _BUILT[name]
+
+
 def toy_fmu(tmp_path_factory) -> Path:
     """<tmp>/toy.fmu built from toy_model.toy_spec(), once per session (process)."""
     if "toy" not in _BUILT:

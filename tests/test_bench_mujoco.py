@@ -18,10 +18,10 @@ mujoco = pytest.importorskip("mujoco", reason="mujoco (the optional 'bench' extr
 
 from cedra.reports import bench
 from cedra.reports import mujoco_model as mm                # noqa: E402
-from cedra.fmu.packaging import build_fmu                            # noqa: E402
 from cedra.rover.parameters import DEFAULTS                      # noqa: E402
 from cedra.models.scene import load_shipped                       # noqa: E402
 from cedra.run.simulate import run_bump                        # noqa: E402
+from fmu_harness import shipped_fmu
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -31,9 +31,7 @@ def build_dir(tmp_path_factory):
     """The benchmark's FMUs: build/<scene>.fmu when ./build.sh made them (CI), else built here."""
     d = tmp_path_factory.mktemp("bench_build")
     for name in bench.FMU_RUNS:
-        built = REPO / "build" / f"{name}.fmu"
-        (d / f"{name}.fmu").symlink_to(built if built.exists() else build_fmu(load_shipped(name).spec(),
-                                                                              tmp_path_factory.mktemp(name)))
+        (d / f"{name}.fmu").symlink_to(shipped_fmu(name, tmp_path_factory))
     return d
 
 
@@ -101,8 +99,7 @@ def test_static_wheel_loads_match_the_fmu(tmp_path_factory):
     mj = mm.static_loads(load_shipped("flat3d"), "plane")
     mj_bump = mm.static_loads(load_shipped("bump3d"), "hfield")
     for name in ("flat3d", "bump3d"):
-        built = REPO / "build" / f"{name}.fmu"
-        path = built if built.exists() else build_fmu(load_shipped(name).spec(), tmp_path_factory.mktemp(name))
+        path = shipped_fmu(name, tmp_path_factory)
         names, rows, _, _ = run_bump(path, 0.01)
         fmu = np.array([rows[0][names.index(f"wheel[{i}].Fn")] for i in range(1, 7)])
         for loads in (mj, mj_bump):
@@ -141,3 +138,77 @@ def test_quick_bench_prints_every_row(build_dir):
         assert int(cells[5].split()[0]) > 0
     for fmu, mj in bench.PAIRS:
         assert any(ln.startswith(f"- {mj} / FMU {fmu} CPU: x") for ln in lines), (fmu, mj, text)
+
+
+def test_boxes_hold_the_stairs_and_the_step():
+    """scene_boxes: stairs3d's box tops (j + 1) terrain_h from edge j on, turned by terrain_yaw (a ray 1 cm on
+    either side of each edge, at several places along it), and step2d's one box at terrain_x0."""
+    from cedra.reports.bench_steps import across, geometry
+    sc = load_shipped("stairs3d")
+    p = mm.numbers(sc)
+    r = mm.Rover(sc, "boxes")
+    geo = geometry(sc)
+    c, s = math.cos(geo["yaw"]), math.sin(geo["yaw"])
+    for j in range(sc.options.stairs_steps):
+        for v in (-0.4, 0.0, 0.3):                       # along the edge
+            for du, top in ((-0.01, j * p["terrain_h"]), (0.01, (j + 1) * p["terrain_h"])):
+                u = j * p["terrain_w"] + du
+                x, y = geo["x0"] + u * c - v * s, geo["y0"] + u * s + v * c
+                assert across(geo, x, y) == pytest.approx(u)
+                assert ray_height(r, x, y) == pytest.approx(top, abs=1e-9), (j, v, du)
+    st = load_shipped("step2d")
+    r = mm.Rover(st, "boxes")
+    h = mm.numbers(st)["terrain_h"]
+    assert ray_height(r, 0.99, 0.1) == pytest.approx(0.0, abs=1e-9)
+    assert ray_height(r, 1.01, -0.2) == pytest.approx(h, abs=1e-9)
+    with pytest.raises(ValueError, match="no boxes for terrain kind 'bump'"):
+        mm.scene_boxes(load_shipped("bump2d"))
+
+
+def test_drives_hold_the_wheels_to_the_motor_envelope():
+    """A scene with drives: MuJoCo's torques are clipped to the envelope every step, so full torque on flat ground
+    cannot spin a wheel past the no-load speed (without the clip 4 N.m would spin them far beyond it)."""
+    sc = load_shipped("stairs2d")                        # drives on; the front wheel meets the first edge at ~1 s
+    assert sc.options.drives
+    r = mm.Rover(sc, "boxes")
+    mm.settle(r)
+    r.set_torques(np.full(6, 4.0))
+    fastest = 0.0
+    for _ in range(900):
+        r.step()
+        fastest = max(fastest, float(np.max(np.abs(r.data.qvel[r.spin_dofs]))))
+    w0 = mm.numbers(sc)["drive_noload_speed"]
+    assert 0.9 * w0 < fastest <= w0 * (1 + 1e-3)
+
+
+def test_energy_audit():
+    """largest_rise finds the largest rise over any interval; on flat ground before the step MuJoCo's E - W does
+    not rise (contact and joints only take energy), while it does rise by what a test adds in."""
+    from cedra.reports.bench_steps import largest_rise, mujoco_energy
+    t = np.arange(6.0)
+    assert largest_rise(t, [0, -1, 2, -5, -2, -4]) == (3.0, 2.0)
+    assert largest_rise(t, [3, 2, 1, 0, -1, -2]) == (0.0, 0.0)
+    unpaid, _ = mujoco_energy(load_shipped("step2d"), multiccd=False, stop_time=2.0)   # x < 0.45 m: flat
+    assert 0 <= unpaid < 0.05
+
+
+def test_steps_table_prints_every_row(build_dir, tmp_path_factory):
+    """`bench --steps` (2 s runs): a row per scene and run, the FMU's energy balance holds (E - W never rises by
+    more than 1e-3 J) and every MuJoCo row is compared with the FMU."""
+    from cedra.reports import bench_steps
+    d = tmp_path_factory.mktemp("steps_build")
+    for name in bench_steps.SCENES:
+        (d / f"{name}.fmu").symlink_to(shipped_fmu(name, tmp_path_factory))
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        rc = bench.main(SimpleNamespace(build=str(d), stop_time=2.0, steps=True))
+    text = out.getvalue()
+    assert rc == 0, text
+    lines = text.splitlines()
+    for name in bench_steps.SCENES:
+        rows = [ln for ln in lines if ln.startswith(f"| {name} | ")]
+        assert len(rows) == 3, (name, text)
+        fmu = [c.strip() for c in rows[2].strip("|").split("|")]
+        assert fmu[1] == f"FMU {name}" and fmu[4] == "stuck"        # 2 s at 0.2 m/s: before the first edge
+        assert float(fmu[6].split()[0]) < 1e-3, rows[2]
+        assert sum(ln.startswith(f"- {name}: MuJoCo") for ln in lines) == 2

@@ -24,19 +24,17 @@ difference shrinks with the tolerance: it is the solvers' error, not a model dif
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
 import pytest
 
-from cedra.fmu.packaging import build_fmu
 from cedra.models.plant import CedraModel, ModelOptions
 from cedra.rover.parameters import DEFAULTS
 from cedra.models.scene import load_shipped
 from cedra.run.simulate import run_bump
+from fmu_harness import shipped_fmu
 
-REPO = Path(__file__).resolve().parents[1]
 STOP = 8.0          # over the whole bump: the front wheel meets it near t = 3.5 s, the rear wheel leaves ~7.5 s
 V_MAX = 1.0         # m/s, bound on the speeds entering the force's error scale (see the module docstring)
 SYM = 1e-9
@@ -44,8 +42,7 @@ EXTRA = ["body.y", "body.yaw", "body.roll", "bogie.theta[2]"]
 
 
 def fmu_of(name, tmp_path_factory):
-    built = REPO / "build" / f"{name}.fmu"
-    return built if built.exists() else build_fmu(load_shipped(name).spec(), tmp_path_factory.mktemp(name))
+    return shipped_fmu(name, tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

@@ -5,14 +5,13 @@ import sys
 import textwrap
 from pathlib import Path
 
-from cedra.fmu.packaging import build_fmu
-from cedra.models.scene import load_shipped
+from fmu_harness import shipped_fmu
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def test_fmpy_logging_still_works_after_a_driver_is_gone(tmp_path):
-    fmu = build_fmu(load_shipped("bump2d").spec(), tmp_path)
+def test_fmpy_logging_still_works_after_a_driver_is_gone(tmp_path_factory):
+    fmu = shipped_fmu("bump2d", tmp_path_factory)
     script = textwrap.dedent(f"""
         import gc
         from fmpy import extract, read_model_description

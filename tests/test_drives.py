@@ -13,7 +13,6 @@ import pytest
 
 from cedra.models import scene as sc
 from cedra.run.driver import RoverFMU
-from cedra.fmu.packaging import build_fmu
 from cedra.models.plant import ModelOptions
 from cedra.rover.mechanism import IDX
 from model_harness import Built
@@ -21,6 +20,7 @@ from model_harness import Built
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples"))
 import drives_paper  # noqa: E402
+from fmu_harness import shipped_fmu
 
 DRIVE_PARAMS = ("drive_stall_torque", "drive_noload_speed", "drive_viscous")
 
@@ -171,9 +171,7 @@ def test_drives_scene_options_reach_the_spec(tmp_path):
 def fmu_paths(tmp_path_factory):
     paths = {}
     for name in ("bump2d", "bump2d_drives"):
-        built = REPO / "build" / f"{name}.fmu"
-        paths[name] = built if built.exists() else build_fmu(sc.load_shipped(name).spec(),
-                                                             tmp_path_factory.mktemp(name))
+        paths[name] = shipped_fmu(name, tmp_path_factory)
     return paths
 
 

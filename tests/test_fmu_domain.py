@@ -4,10 +4,11 @@ import numpy as np
 from cedra.run.driver import RoverFMU
 from cedra.fmu.packaging import build_fmu
 from cedra.models.scene import load_shipped
+from fmu_harness import shipped_fmu
 
 
-def test_flipping_torque_is_a_loud_discard(tmp_path):
-    fmu = RoverFMU(build_fmu(load_shipped("bump2d").spec(), tmp_path))
+def test_flipping_torque_is_a_loud_discard(tmp_path_factory):
+    fmu = RoverFMU(shipped_fmu("bump2d", tmp_path_factory))
     fmu.start()
     fmu.set({f"tau[{i}]": 50.0 for i in range(1, 7)})     # 300 N.m of reaction torque on a 24 kg rover
     ok = True

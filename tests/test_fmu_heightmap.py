@@ -12,20 +12,18 @@ import numpy as np
 import pytest
 
 from cedra.run.driver import RoverFMU
-from cedra.fmu.packaging import build_fmu
-from cedra.models.scene import load_shipped
 from cedra.run.simulate import SpeedController
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples"))
 import hills  # noqa: E402
+from fmu_harness import shipped_fmu
 
 FN = [f"wheel[{k}].Fn" for k in range(1, 7)]
 
 
 def fmu_of(name, tmp_path_factory):
-    built = REPO / "build" / f"{name}.fmu"
-    return built if built.exists() else build_fmu(load_shipped(name).spec(), tmp_path_factory.mktemp(name))
+    return shipped_fmu(name, tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

@@ -8,26 +8,15 @@ from pathlib import Path
 import pytest
 
 import misuse_matrix
-from cedra.models.controller import CONTROLLERS, controller_spec
-from cedra.fmu.packaging import build_fmu
-from cedra.models.scene import load_shipped, shipped
-
-REPO = Path(__file__).resolve().parents[1]
-_PATHS: dict[str, Path] = {}
-
+from cedra.models.controller import CONTROLLERS
+from cedra.models.scene import shipped
+from fmu_harness import shipped_fmu
 
 FMUS = shipped() + list(CONTROLLERS)       # every shipped plant and the drive controllers
 
 
 def fmu_path(name, tmp_path_factory) -> Path:
-    if name not in _PATHS:
-        built = REPO / "build" / f"{name}.fmu"
-        if built.exists():
-            _PATHS[name] = built
-        else:
-            spec = controller_spec(CONTROLLERS[name]) if name in CONTROLLERS else load_shipped(name).spec()
-            _PATHS[name] = build_fmu(spec, tmp_path_factory.mktemp(name))
-    return _PATHS[name]
+    return shipped_fmu(name, tmp_path_factory)
 
 
 CLASSES = ["call order", "NULL arguments", "unknown references and wrong types",

@@ -4,17 +4,14 @@ an importer relies on: the three solvers agree, bad input is refused with a logg
 Uses build/<scene>.fmu when `./build.sh` has built it (CI does), else builds into pytest's tmp dir."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from cedra.fmu import checks
 from cedra.run.driver import RoverFMU
-from cedra.fmu.packaging import build_fmu
-from cedra.models.scene import load_shipped, shipped
+from cedra.models.scene import shipped
+from fmu_harness import shipped_fmu
 
-REPO = Path(__file__).resolve().parents[1]
 POW2_STEP = 2.0 ** -7            # libcosim and FMPy pass bit-identical (t, h) with this step (see test_fmu_checkers)
 
 
@@ -22,9 +19,7 @@ POW2_STEP = 2.0 ** -7            # libcosim and FMPy pass bit-identical (t, h) w
 def fmu_paths(tmp_path_factory):
     paths = {}
     for name in shipped():
-        built = REPO / "build" / f"{name}.fmu"
-        paths[name] = built if built.exists() else build_fmu(load_shipped(name).spec(),
-                                                             tmp_path_factory.mktemp(name))
+        paths[name] = shipped_fmu(name, tmp_path_factory)
     return paths
 
 

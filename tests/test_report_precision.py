@@ -7,18 +7,14 @@ from cedra.reports import precision as P
 from cedra.reports.common import Problem, errors, grid, python_run_outputs, reference_outputs, run_casadi, \
     run_fmu, run_scipy, fn_names, position_names
 from cedra.models.scene import load_shipped
+from fmu_harness import shipped_fmu
 
 T_END = 1.0
 
 
 def scene_fmu(name, tmp_path_factory):
     """build/<name>.fmu when `./build.sh` has made it, else built here."""
-    from pathlib import Path
-    p = Path(__file__).resolve().parents[1] / "build" / f"{name}.fmu"
-    if p.exists():
-        return p
-    from cedra.fmu.packaging import build_fmu
-    return Path(build_fmu(load_shipped(name).spec(), tmp_path_factory.mktemp("fmu")))
+    return shipped_fmu(name, tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

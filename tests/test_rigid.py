@@ -9,8 +9,9 @@ import pytest
 
 from cedra.run.driver import RoverFMU
 from cedra.fmu.packaging import build_fmu
-from cedra.models.scene import load_shipped, parse
+from cedra.models.scene import parse
 from cedra.run.simulate import SpeedController
+from fmu_harness import shipped_fmu
 
 WHEELS = range(1, 7)
 
@@ -24,8 +25,8 @@ def build(tmp_path_factory, data):
 def fmus(tmp_path_factory):
     ramp = dict(dims="2d", terrain="slope", contact="rigid", locked_wheels=True)
     return {
-        "rigid": build_fmu(load_shipped("bump2d_rigid").spec(), tmp_path_factory.mktemp("r")),
-        "compliant": build_fmu(load_shipped("bump2d").spec(), tmp_path_factory.mktemp("c")),
+        "rigid": shipped_fmu("bump2d_rigid", tmp_path_factory),
+        "compliant": shipped_fmu("bump2d", tmp_path_factory),
         "ramp": build(tmp_path_factory, dict(name="ramp_rigid", **ramp)),
     }
 

@@ -321,10 +321,14 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, name):
     sw = load(sw_mod.resolve(name))
     sw.out = tmp_path / "out"
     points = {k: dict(tau_max=4.0, terrain_h=heights[i], terrain_w=w, mu=mu) for k, (i, w, mu) in MAP_POINTS.items()}
-    sw.grid = {"terrain_h": sorted({p["terrain_h"] for p in points.values()} | {heights[6]}),
-               "terrain_w": [0.14625, 0.26], "mu": [0.2, 0.8]}
+    # the four runs alone (a product grid over their values would run 16): the edge column, then the climbing point
+    # appended to the same table
+    sw.grid = {"terrain_h": sorted({heights[i] for i in (5, 6, 9)}), "terrain_w": [0.26], "mu": [0.2]}
     execute(sw, BUILD, workers=2, quiet=True)
+    sw.grid = {"terrain_h": [points["climbs"]["terrain_h"]], "terrain_w": [0.14625], "mu": [0.8]}
+    assert execute(sw, BUILD, workers=2, quiet=True, resume=True)["ran"] == 1
     table = {r["id"]: r for r in read_table(sw.table)}
+    assert len(table) == 4
     map_ids = {shipped.run_id(p) for p in shipped.runs()}
     edge_above = dict(points["edge"], terrain_h=heights[6])
     verdicts = {}
@@ -333,9 +337,11 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, name):
         verdicts[name] = table[sw.run_id(p)]["climbed"]
         assert table[sw.run_id(p)]["verdict"] == ("over" if verdicts[name] == "1" else "stuck"), name
     assert verdicts == {"climbs": "1", "fails": "0", "edge": "1", "edge_above": "0"}
-    # the map of these runs: both verdicts' colours are in the picture
+    # the map of these runs (the cells of the other runs of their grid empty): both verdicts' colours are in it
     from PIL import Image
     from cedra.run.sweep_map import draw
+    sw.grid = {"terrain_h": sorted({p["terrain_h"] for p in points.values()} | {heights[6]}),
+               "terrain_w": [0.14625, 0.26], "mu": [0.2, 0.8]}
     png = draw(sw, read_table(sw.table))
     pixels = {rgb for _, rgb in Image.open(png).convert("RGB").getcolors(1 << 24)}
     assert (0x5c, 0xb8, 0x5c) in pixels and (0xd9, 0x53, 0x4f) in pixels         # climbs (green), fails (red)

@@ -15,23 +15,19 @@ from __future__ import annotations
 
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from cedra.fmu.packaging import build_fmu
 from cedra.models.plant import CedraModel
 from cedra.models.scene import load_shipped
 from cedra.run.driver import RoverFMU
 from cedra.run.simulate import run_bump
-
-REPO = Path(__file__).resolve().parents[1]
+from fmu_harness import shipped_fmu
 
 
 def fmu_of(name, tmp_path_factory):
-    built = REPO / "build" / f"{name}.fmu"
-    return built if built.exists() else build_fmu(load_shipped(name).spec(), tmp_path_factory.mktemp(name))
+    return shipped_fmu(name, tmp_path_factory)
 
 
 def test_switching_functions_match_the_force_laws():

@@ -144,11 +144,14 @@ def main(argv=None):
     be = sub.add_parser("bench", help="benchmark the shipped FMUs (prints figures)")
     be.add_argument("--build", default="build")
     be.add_argument("--quiet", action="store_true", help="no progress lines (the figures only)")
-    be.add_argument("--stop-time", type=float, default=10.0)
+    be.add_argument("--stop-time", type=float, default=None,
+                    help="simulated seconds (default: 10 per scene; --steps: 25; the side by side: 15)")
     be.add_argument("--quick", action="store_true",
                     help="only the MuJoCo side-by-side table, 1 s runs (what the tests run)")
     be.add_argument("--side-by-side", action="store_true",
                     help="only the MuJoCo side-by-side table (the paper's 15 s run)")
+    be.add_argument("--steps", action="store_true",
+                    help="only MuJoCo on the step and the stairs (boxes): CPU, verdicts, unpaid energy gains")
     be.add_argument("--step-cost", action="store_true",
                     help="only the cost of one implicit step: rodas4 dense against reduced (Schur) stage solve, "
                          "ros34pw2")

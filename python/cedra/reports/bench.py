@@ -16,6 +16,9 @@ defaults, at FMU_SETTINGS and at the REFERENCE settings: CPU time (time.process_
 peak normal force, steps, each FMU row's peak against its reference, and the ratios MuJoCo CPU / FMU CPU of the
 matching pairs at the defaults and at the fastest setting whose forces converged (peak within CONVERGED).
 `--quick`: only that table, 1 s runs (the tests); `--side-by-side`: only that table.
+
+Last, MuJoCo on the step and the stairs as boxes (cedra.reports.bench_steps; `--steps`: only that table): CPU,
+where each run ended and its verdict, and the largest energy gain no motor paid for.
 """
 from __future__ import annotations
 
@@ -254,9 +257,13 @@ def print_step_cost(build: Path, stop_time=8.0) -> int:
 
 def main(args):
     build = Path(getattr(args, "build", "build"))
-    stop_time = float(getattr(args, "stop_time", 10.0))
+    given = getattr(args, "stop_time", None)
+    stop_time = 10.0 if given is None else float(given)
     if getattr(args, "step_cost", False):
         return print_step_cost(build)
+    if getattr(args, "steps", False):
+        from cedra.reports.bench_steps import STOP, print_steps
+        return print_steps(build, STOP if given is None else float(given))
     if getattr(args, "quick", False):       # the MuJoCo side-by-side table only, short (what the tests run)
         return print_side_by_side(build, QUICK_STOP, quiet=getattr(args, "quiet", False))
     if getattr(args, "side_by_side", False):
@@ -303,7 +310,9 @@ def main(args):
         for label in ("bump2d_rigid", "bump2d_rigid dopri5"):
             print(f"  ratio {label} / bump2d wall time: x{rows[label]['wall'] / rows['bump2d']['wall']:.2f}")
     rc = max(rc, print_step_cost(build))
-    return max(rc, print_side_by_side(build, SIDE_STOP, quiet=getattr(args, "quiet", False)))
+    rc = max(rc, print_side_by_side(build, SIDE_STOP, quiet=getattr(args, "quiet", False)))
+    from cedra.reports.bench_steps import STOP, print_steps
+    return max(rc, print_steps(build, STOP))
 
 
 # ------------------------------------------------------------------ MuJoCo side by side
@@ -338,18 +347,19 @@ REFERENCE = solver_setting("rodas4", 1e-9)
 CONVERGED = 1e-3         # peak Fn within this (relative) of the reference run: "forces converged"
 
 
-def fmu_closed_loop(path, stop_time, settings: dict | None = None, label=""):
+def fmu_closed_loop(path, stop_time, settings: dict | None = None, label="", record=()):
     """The paper's run through the FMU (docs/model.md; the main job's loop cedra.run.simulate.speed_loop), reading
     only what the table needs (body.vx for the controller, body.x, the six wheel[i].Fn) in one fmi2GetReal per
     sample. The loop calls the FMU's fmi2 functions with buffers made once, as a compiled master would (FMPy's
     checked wrappers build the arrays on every call: ~20 us per sample on this machine, a fifth of a flat3d
     sample), so the CPU time is the FMU's and not the Python glue's. Timed with time.process_time from
-    fmi2Instantiate (the static settle included) to the last step; the FMU's unzip is not timed."""
+    fmi2Instantiate (the static settle included) to the last step; the FMU's unzip is not timed. record: more
+    outputs read in the same call, returned as extra["series"][name] (arrays over the samples)."""
     from cedra.run.driver import RoverFMU
     from cedra.reports.mujoco_model import Result
     from cedra.run.simulate import speed_loop
     f = RoverFMU(path)
-    names = ["body.vx", "body.x"] + [f"wheel[{i}].Fn" for i in range(1, 7)]
+    names = ["body.vx", "body.x"] + [f"wheel[{i}].Fn" for i in range(1, 7)] + list(record)
     samples = []
     cpu = time.process_time()
     f.start(settings or {})
@@ -361,8 +371,9 @@ def fmu_closed_loop(path, stop_time, settings: dict | None = None, label=""):
     steps, rejected, evals = (int(v) for v in f.get(["solver.steps", "solver.rejected", "solver.rhs_evals"]))
     jacs = int(f.get(["solver.jac_evals"])[0]) if f.has("solver.jac_evals") else -1
     f.close()
+    series = {n: y[:, 8 + k] for k, n in enumerate(record)}
     return Result(label or f"FMU {Path(path).stem}", cpu, float(t[-1]), steps, t, y[:, 1], y[:, 2:8], ok, msg,
-                  extra=dict(rejected=rejected, rhs_evals=evals, jac_evals=jacs))
+                  extra=dict(rejected=rejected, rhs_evals=evals, jac_evals=jacs, series=series))
 
 
 def side_by_side(build: Path, stop_time=SIDE_STOP, dts=MUJOCO_DTS, log=print, quiet=False) -> dict:

@@ -35,6 +35,12 @@ What differs from the FMU's model (so the two are not expected to agree beyond a
     bodies): 0.04 kg on a 24 kg rover.
   * joint stops are MuJoCo joint limits (soft constraints, default solreflimit), not the model's clipped
     spring-damper stop_k = 500 N.m/rad, stop_d = 5 N.m.s/rad.
+  * steps and stairs ('boxes'): sharp boxes on the plane, where the model's edges are smoothed over terrain_s;
+    MuJoCo's box-cylinder contact is its general convex collision, with multi-point contact (multiccd, its default)
+    or without.
+  * drives (scenes with drives): the command is clipped to the drive's torque-speed envelope every step in Python
+    (Rover.step) and the gear's viscous loss is the spin joint's damping; without drives the motors are pure torque
+    sources, as the model's are.
   * steering: no steering joints. Scenes with steering (flat3d) hold it at 0 with the servo; here it is welded.
   * the four-bar is closed by a soft equality constraint (drift ~1e-5 m), not in closed form; theta5 is a
     coordinate of MuJoCo's model.
@@ -65,7 +71,8 @@ SETTLE = 1.0                # s of zero torque before the timed run
 BUMP_CELL = 0.01            # m, the bump's height-field cells
 BUMP_X = (-1.0, 4.0)        # m, extent of the bump's height field
 BUMP_Y = (-0.4, 0.4)
-TERRAINS = ("plane", "hfield")
+TERRAINS = ("plane", "hfield", "boxes")
+LANDING = 2.0               # m: the top box reaches this far past the last edge (and the first box as far sideways)
 
 
 def mujoco():
@@ -159,6 +166,38 @@ def scene_grid(scene: Scene, cell=BUMP_CELL) -> Grid:
     raise ValueError(f"no height field for terrain kind {kind!r} (bump and heightmap have one; use 'plane')")
 
 
+@dataclass
+class Box:
+    center: np.ndarray      # world, m
+    half: np.ndarray        # half sizes along the box's own axes, m
+    yaw: float              # about Z, rad
+
+
+def scene_boxes(scene: Scene) -> list[Box]:
+    """A step or stairs scene's terrain as sharp boxes on the ground plane (docs/model.md, Terrain): step j's top
+    at (j + 1) terrain_h from its edge at u = j terrain_w to LANDING past the last edge, u measured across the edges
+    from (terrain_x0, terrain_y0) along yaw terrain_yaw (a step: one box at terrain_x0). The model's edges are
+    smoothed over terrain_s (tanh); a box's edge is where the smoothed profile is at half the rise."""
+    kind = scene.options.terrain
+    if kind not in ("step", "stairs"):
+        raise ValueError(f"no boxes for terrain kind {kind!r} (step and stairs have them)")
+    p = numbers(scene)
+    steps = scene.options.stairs_steps if kind == "stairs" else 1
+    run = p["terrain_w"] if kind == "stairs" else 0.0
+    yaw = p.get("terrain_yaw", 0.0) if kind == "stairs" else 0.0
+    origin = np.array([p["terrain_x0"], p.get("terrain_y0", 0.0) if kind == "stairs" else 0.0])
+    along = np.array([math.cos(yaw), math.sin(yaw)])
+    end = (steps - 1) * run + LANDING
+    boxes = []
+    for j in range(steps):
+        top = (j + 1) * p["terrain_h"]
+        u0 = j * run
+        xy = origin + along * 0.5 * (u0 + end)
+        boxes.append(Box(np.array([xy[0], xy[1], 0.5 * top]), np.array([0.5 * (end - u0), LANDING + end, 0.5 * top]),
+                         yaw))
+    return boxes
+
+
 def _v(x):
     return " ".join(f"{float(t):.15g}" for t in np.atleast_1d(x))
 
@@ -167,8 +206,9 @@ def _wheel(name, pos, p, indent):
     m, R = p["m_w"], p["R_w"]
     s = " " * indent
     inertia = _v([0.25 * m * R * R, 0.5 * m * R * R, 0.25 * m * R * R])
+    damping = f' damping="{p["drive_viscous"]!r}"' if p["drives"] else ""     # the gear's viscous loss
     return (f'{s}<body name="{name}" pos="{_v(pos)}">\n'
-            f'{s}  <joint name="{name}_spin" type="hinge" axis="0 1 0"/>\n'
+            f'{s}  <joint name="{name}_spin" type="hinge" axis="0 1 0"{damping}/>\n'
             f'{s}  <inertial pos="0 0 0" mass="{m!r}" diaginertia="{inertia}"/>\n'
             f'{s}  <geom name="{name}_geom" class="wheel" type="cylinder" size="{R!r} {WHEEL_HALF_WIDTH}" '
             f'zaxis="0 1 0"/>\n'
@@ -215,13 +255,22 @@ def start_height(p: dict, grid: Grid | None, x: float, y: float) -> float:
     return base + float(np.max(grid.Z[j, i]))
 
 
-def mjcf(scene: Scene, terrain: str = "hfield", dt: float = 1e-3, cell: float = BUMP_CELL) -> str:
+def _boxes_xml(boxes: list[Box]) -> str:
+    return "".join(f'    <geom name="step{j}" type="box" size="{_v(b.half)}" pos="{_v(b.center)}" '
+                   f'euler="0 0 {b.yaw!r}" class="ground"/>\n' for j, b in enumerate(boxes))
+
+
+def mjcf(scene: Scene, terrain: str = "hfield", dt: float = 1e-3, cell: float = BUMP_CELL, multiccd: bool = True,
+         energy: bool = False) -> str:
     """MJCF text of CEDRA with the scene's numbers. terrain: 'hfield' (the scene's bump or heightmap grid as a
-    height field) or 'plane'."""
+    height field), 'plane', or 'boxes' (a step or stairs scene's steps as boxes on the plane, scene_boxes).
+    multiccd: MuJoCo's multi-point convex collision (its default: on); energy: MuJoCo computes data.energy."""
     if terrain not in TERRAINS:
         raise ValueError(f"terrain must be one of {TERRAINS}, got {terrain!r}")
-    p = numbers(scene)
+    p = {**numbers(scene), "drives": scene.options.drives}
     grid = scene_grid(scene, cell) if terrain == "hfield" else None
+    flags = ("" if multiccd else ' multiccd="disable"') + (' energy="enable"' if energy else "")
+    flags = f"<flag{flags}/>" if flags else ""
     g = geometry(p)
     A, B, C, D, c6, mF = g["A"], g["B"], g["C"], g["D"], g["c6"], g["mF"]
     th4 = g["th4"]
@@ -229,6 +278,8 @@ def mjcf(scene: Scene, terrain: str = "hfield", dt: float = 1e-3, cell: float = 
     yaw = scene.start.get("yaw", 0.0)
     z0 = start_height(p, grid, x0, y0)
     asset, ground = _terrain_xml(grid)
+    if terrain == "boxes":
+        ground += _boxes_xml(scene_boxes(scene))
     mu = p["mu"]
     stop = p["bogie_stop"]
     IF = p["I_F"]
@@ -236,7 +287,7 @@ def mjcf(scene: Scene, terrain: str = "hfield", dt: float = 1e-3, cell: float = 
     x = f'''<mujoco model="cedra_{scene.name}_{terrain}">
   <!-- generated by cedra.reports.mujoco_model from the scene {scene.name} and cedra.rover.parameters -->
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{dt!r}" integrator="Euler" gravity="0 0 {-p['g']!r}"/>
+  <option timestep="{dt!r}" integrator="Euler" gravity="0 0 {-p['g']!r}">{flags}</option>
   <size memory="16M"/>
   <default>
     <geom contype="0" conaffinity="0" rgba="0.6 0.6 0.7 1"/>
@@ -283,20 +334,37 @@ def mjcf(scene: Scene, terrain: str = "hfield", dt: float = 1e-3, cell: float = 
 class Rover:
     """A compiled MuJoCo model of the scene and its data, with the FMU's output names where they exist."""
 
-    def __init__(self, scene: Scene, terrain: str = "hfield", dt: float = 1e-3, cell: float = BUMP_CELL):
+    def __init__(self, scene: Scene, terrain: str = "hfield", dt: float = 1e-3, cell: float = BUMP_CELL,
+                 multiccd: bool = True, energy: bool = False):
         mj = mujoco()
         self.mj = mj
         self.scene, self.terrain, self.dt = scene, terrain, dt
-        self.xml = mjcf(scene, terrain, dt, cell)
+        self.xml = mjcf(scene, terrain, dt, cell, multiccd, energy)
         self.model = mj.MjModel.from_xml_string(self.xml)
         self.data = mj.MjData(self.model)
         self.wheel_of_geom = {mj.mj_name2id(self.model, mj.mjtObj.mjOBJ_GEOM, f"wheel{i}_geom"): i - 1
                               for i in range(1, 7)}
         self._f6 = np.zeros(6)
+        self.spin_dofs = np.array([self.model.jnt_dofadr[mj.mj_name2id(self.model, mj.mjtObj.mjOBJ_JOINT,
+                                                                        f"wheel{i}_spin")] for i in range(1, 7)])
+        p = numbers(scene)
+        self.drives = scene.options.drives
+        self._cmd = np.zeros(6)
+        self.stall, self.noload = p["drive_stall_torque"], p["drive_noload_speed"]
         mj.mj_forward(self.model, self.data)
 
     def step(self, n=1):
-        self.mj.mj_step(self.model, self.data, nstep=n)
+        """n steps of dt with the torques set by set_torques; with the scene's drives, every step first clips the
+        commands to each drive's torque-speed envelope at the wheel's present spin rate (docs/model.md, Drives:
+        the FMU's drive_torque; the gear's viscous loss is the spin joint's damping), as a 1/dt drive would."""
+        if not self.drives:
+            self.mj.mj_step(self.model, self.data, nstep=n)
+            return
+        for _ in range(n):
+            w = self.data.qvel[self.spin_dofs]
+            self.data.ctrl[:] = np.minimum(np.maximum(self._cmd, -self.stall * (1 + w / self.noload)),
+                                           self.stall * (1 - w / self.noload))
+            self.mj.mj_step(self.model, self.data)
 
     @property
     def time(self):
@@ -327,8 +395,24 @@ class Rover:
             F[w] += self._f6[0]
         return F
 
+    def unstable(self) -> bool:
+        """MuJoCo met non-finite or huge accelerations (it then resets the state to the model's start by itself)."""
+        return self.data.warning[self.mj.mjtWarning.mjWARN_BADQACC].number > 0
+
+    def energy(self) -> float:
+        """Kinetic + potential energy (gravity, joint springs), J; the model must be made with energy=True."""
+        self.mj.mj_energyPos(self.model, self.data)
+        self.mj.mj_energyVel(self.model, self.data)
+        return float(self.data.energy[0] + self.data.energy[1])
+
+    def motor_power(self) -> float:
+        """The power the six motors put into the wheels now, W."""
+        return float(np.dot(self.data.actuator_force, self.data.actuator_velocity))
+
     def set_torques(self, tau):
-        self.data.ctrl[:] = tau
+        """The six torque commands (with drives: what each drive is asked for, clipped in step)."""
+        self._cmd = np.asarray(tau, dtype=float) * np.ones(6)
+        self.data.ctrl[:] = self._cmd
 
 
 @dataclass
@@ -360,11 +444,11 @@ def settle(rover: Rover, seconds=SETTLE):
 
 
 def run(scene: Scene, terrain: str = "hfield", dt: float = 1e-3, stop_time: float = 15.0, cell: float = BUMP_CELL,
-        label: str = "") -> Result:
+        label: str = "", multiccd: bool = True) -> Result:
     """The paper's run (docs/model.md) on MuJoCo: settle, then every SAMPLE s read body.vx, the speed controller
     (cedra.run.simulate.SpeedController) sets all six torques, MuJoCo steps SAMPLE/dt times (zero-order hold).
     The CPU time counts the controlled part only (the model compile and the settle are not timed)."""
-    rover = Rover(scene, terrain, dt, cell)
+    rover = Rover(scene, terrain, dt, cell, multiccd)
     settle(rover)
     nsub = int(round(SAMPLE / dt))
     if abs(nsub * dt - SAMPLE) > 1e-12:
@@ -382,13 +466,13 @@ def run(scene: Scene, terrain: str = "hfield", dt: float = 1e-3, stop_time: floa
             break
         rover.set_torques(np.full(6, ctrl(rover.vx())))
         rover.step(nsub)
-        if not np.all(np.isfinite(rover.data.qpos)):
-            ok, msg = False, f"non-finite state at t = {t[k] + SAMPLE:g}"
+        if not np.all(np.isfinite(rover.data.qpos)) or rover.unstable():
+            ok, msg = False, f"unstable at t = {t[k] + SAMPLE:g} (non-finite or huge accelerations)"
             t, x, F = t[:k + 1], x[:k + 1], F[:k + 1]
             break
     cpu = time.process_time() - cpu
     return Result(label or f"MuJoCo {terrain} dt {dt * 1e3:g} ms", cpu, float(t[-1]), (len(t) - 1) * nsub,
-                  t, x, F, ok, msg)
+                  t, x, F, ok, msg, extra=dict(y_end=float(rover.data.qpos[1])))
 
 
 def static_loads(scene: Scene, terrain: str = "plane", dt: float = 1e-3, seconds: float = 2.0,
