@@ -81,6 +81,7 @@ PAIRS = (0, 1, 0, 1, 2, 3)   # tau[1..6] from the four decisions (wheel pairs 1/
 WHEELS = (1, 2, 5, 6)        # the planar model's distinct wheels (3, 4 repeat 1, 2)
 RATE_MAX = 200.0             # rad/s: bound of the wheels' spin rates at the nodes (state_bounds)
 SPEED_MAX = 20.0             # m/s, rad/s: bound of the other rates at the nodes
+ARRIVAL_TOL = 1e-4           # m: the goal counts as reached this close (the optimum ends on it, the replay within this)
 FN_MIN = 1.0                 # N: a wheel counts in the friction ratio while it carries more than this
 TOP_KEYS = {"name", "scene", "objective", "margin", "interval", "horizon", "torque_max", "start_x", "guess", "speed",
             "regularization", "inputs", "solver"}
@@ -350,7 +351,7 @@ def measures(names, rows, goal_x: float) -> dict:
     |Fx| / Fn over wheels carrying more than FN_MIN and the motors' mechanical work."""
     col = {n: rows[:, k] for k, n in enumerate(names)}
     t, x = col["time"], col["body.x"]
-    arrived = np.nonzero(x >= goal_x)[0]
+    arrived = np.nonzero(x >= goal_x - ARRIVAL_TOL)[0]
     k_end = int(arrived[0]) if arrived.size else len(t) - 1
     dt = np.diff(t)[:k_end]
     tau2 = sum(col[f"tau[{k}]"][:k_end] ** 2 for k in range(1, 7))
@@ -465,7 +466,12 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
                                                           problem.torque_max).ravel(order="F"), [dt_guess], [s0]])
     nlp = {"x": w, "f": J, "g": ca.vertcat(*g)}
     opts = {"ipopt": {"max_iter": problem.max_iter, "tol": problem.tol, "hessian_approximation": "limited-memory",
-                      "print_level": 5 if log else 0, "sb": "yes"}, "print_time": False}
+                      "print_level": 5 if log else 0, "sb": "yes",
+                      # the sensitivities carry no jump term where a contact law switches (see the module
+                      # docstring), which keeps the dual infeasibility at 1e-3..1e-2 near the optimum: stop there
+                      # once the objective has levelled off, with the shooting defects closed
+                      "acceptable_tol": 1e-2, "acceptable_iter": 3, "acceptable_obj_change_tol": 1e-3,
+                      "acceptable_constr_viol_tol": 1e-5}, "print_time": False}
     solver = ca.nlpsol("climb", "ipopt", nlp, opts)
     t0 = time.perf_counter()
     sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg))
