@@ -1,4 +1,4 @@
-"""Command line: python -m cedra build|simulate|compare|bench|report|fuzz ..."""
+"""Command line: python -m cedra build|simulate|compare|bench|report|fuzz|sweep|watch|optimize ..."""
 from __future__ import annotations
 
 import argparse
@@ -115,6 +115,11 @@ def cmd_sweep(args):
     return sweep.main(args)
 
 
+def cmd_optimize(args):
+    from cedra.run import optimize
+    return optimize.main(args)
+
+
 def cmd_fuzz(args):
     from cedra.fmu import fuzz
     return fuzz.main(args)
@@ -171,14 +176,17 @@ def main(argv=None):
     r.add_argument("--figure", action="append", default=None,
                    help="figures: only this figure (repeatable; cedra.reports.figures lists them)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
+    from cedra.run.optimize import add_parser as add_optimize_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
     from cedra.run.watch import add_parser as add_watch_parser
     add_fuzz_parser(sub)
+    add_optimize_parser(sub)
     add_sweep_parser(sub)
     add_watch_parser(sub)
     args = ap.parse_args(argv)
     commands = {"build": cmd_build, "simulate": cmd_simulate, "compare": cmd_compare, "bench": cmd_bench,
-                "report": cmd_report, "fuzz": cmd_fuzz, "sweep": cmd_sweep, "watch": cmd_watch}
+                "report": cmd_report, "fuzz": cmd_fuzz, "sweep": cmd_sweep, "watch": cmd_watch,
+                "optimize": cmd_optimize}
     return commands[args.cmd](args)
 
 

@@ -1,0 +1,659 @@
+"""Dynamics optimization of a climb: `python -m cedra optimize <problem.toml> [--out DIR] [--build DIR]`.
+
+The wheel torques over time that take the planar rover over an obstacle at the least cost, on the very equations
+the scene's FMU integrates (cedra_M, the forces f, the compliant contact and its contact search), solved by IPOPT
+through CasADi's nlpsol. Then the optimal torques are replayed open loop through the scene's FMU, and the report
+compares the optimum with the drive controller's two modes (equal torques, inverse kinematics) on the same
+measures, from the same FMU runs.
+
+Method: direct multiple shooting. The contact is stiff (a slipping wheel's spin relaxes at ~1e4 1/s: the friction
+law's slope mu Fn / v_eps on the wheel's own small inertia), so a transcription has to integrate it with an
+implicit, error-controlled method to follow the FMU to 1e-4 m. Collocation would need a grid fine enough for that
+accuracy everywhere (thousands of intervals over a climb, each with its own contact switches); multiple shooting
+keeps a coarse control grid (0.05-0.1 s) and lets CVODES (BDF, tolerances `solver.integrator_tol`) place its steps
+and find each interval's end state and its sensitivities. One shooting interval per control interval.
+
+The equations: the ODE [u; M^-1 f] formed from the model's own symbolic M and f (with the collision points' force
+cedra_fc where the scene has chassis contact), generated to C with its Jacobian and compiled once per model (cached
+under build/host/), as the FMU is. The contact search (cedra_rim_search, the FMU's C search) makes discrete choices
+and returns converged angles: the model never differentiates it (cedra.mechanics.contact.rim_contacts), and
+neither does the optimizer (casadi.stop_diff on its results). Second derivatives are not formed: IPOPT runs with a
+limited-memory Hessian, and CVODES' sensitivity Newton iteration with the first-order Jacobian.
+
+Decisions: one torque per wheel pair and interval, piecewise constant. The planar model's wheels 3 and 4 share the
+spin coordinates of wheels 1 and 2 (the left and right bogie wheels roll on the same profile), so tau[1] + tau[3]
+is what drives gamma1: the optimizer sets tau[1] = tau[3], tau[2] = tau[4] (the split that costs least energy),
+tau[5] and tau[6] on their own; each |tau[i]| <= torque_max (default: the drive model's stall torque).
+
+Objectives (problem key `objective`):
+  energy         the integral of sum_i tau_i^2 over the six wheels (N^2.m^2.s): the motors' copper loss up to
+                 the constant R / k_t^2, the cost of current; exact for piecewise constant torques. Fixed horizon.
+  peak_friction  the peak over the grid nodes and the wheels of |Fx| / Fn, as an epigraph variable s with
+                 -s Fn <= Fx <= s Fn at every node (no division: a wheel in the air has Fn = Fx = 0). Fixed horizon.
+  time           the final time, free (the interval length is a decision variable).
+peak_friction and time add `regularization` x energy (default 1e-3), which picks one of the many torque histories
+with the same peak or time. Terminal condition: body.x >= terrain_x0 + margin at the final time.
+
+Contact non-smoothness: the compliant law's normal force max(0, k delta - d v_n) and its onset at delta = 0 are
+kinks and a jump in the state derivative; the friction law is already regularized by v_eps. The integrator
+crosses them with error control (the FMU locates them; CVODES shortens its steps), and the sensitivities carry no
+jump term at a switch. No smoothing is applied: the optimizer works on the FMU's equations unchanged, which is
+what makes the open-loop replay agree (measured and reported, see docs/optimize.md).
+
+Problem files (TOML), checked before anything runs, each error naming the file, the key and the reason:
+
+    scene = "bump2d"                # a shipped 2D compliant scene without drives (bump2d, step2d, stairs2d)
+    objective = "energy"            # energy | peak_friction | time
+    margin = 0.4                    # m: body.x must end beyond terrain_x0 + margin (negative: short of it)
+    interval = 0.1                  # s: the control grid (a whole number of the 0.01 s replay step)
+    horizon = 6.0                   # s (time: the initial guess); default: the guess run's arrival, rounded up
+    torque_max = 6.0                # N.m (default: drive_stall_torque)
+    start_x = 0.0                   # m (default: the scene's start)
+    guess = "inverse_kinematics"    # the controller run that starts the optimizer: inverse_kinematics | equal_torques
+    speed = 0.2                     # m/s: the controllers' commanded speed
+    regularization = 1e-3           # weight of energy added to peak_friction and time
+    [inputs]                        # the scene's inputs for this problem (terrain_h, mu, ...; not the torques)
+    [solver]
+    max_iter = 200                  # IPOPT iterations
+    tol = 1e-6                      # IPOPT tolerance
+    integrator_tol = 1e-8           # CVODES abstol = reltol of the shooting integrator
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import subprocess
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from cedra.models.scene import SceneError, load_shipped, shipped
+from cedra.rover.parameters import DEFAULTS
+
+OBJECTIVES = ("energy", "peak_friction", "time")
+GUESSES = {"equal_torques": 0, "inverse_kinematics": 1}     # ctrl.mode of the drive controller
+REPLAY_STEP = 0.01           # s: the FMU replay's communication step (the controllers' runs use it too)
+PAIRS = (0, 1, 0, 1, 2, 3)   # tau[1..6] from the four decisions (wheel pairs 1/3, 2/4, then 5, 6)
+WHEELS = (1, 2, 5, 6)        # the planar model's distinct wheels (3, 4 repeat 1, 2)
+RATE_MAX = 200.0             # rad/s: bound of the wheels' spin rates at the nodes (state_bounds)
+SPEED_MAX = 20.0             # m/s, rad/s: bound of the other rates at the nodes
+ARRIVAL_TOL = 1e-4           # m: the goal counts as reached this close (the optimum ends on it, the replay within this)
+FN_MIN = 1.0                 # N: a wheel counts in the friction ratio while it carries more than this
+TOP_KEYS = {"name", "scene", "objective", "margin", "interval", "horizon", "torque_max", "start_x", "guess", "speed",
+            "regularization", "inputs", "solver"}
+SOLVER_KEYS = {"max_iter", "tol", "integrator_tol"}
+
+
+class ProblemError(ValueError):
+    """A bad problem file, raised before anything runs."""
+
+
+@dataclass
+class Problem:
+    name: str
+    scene: str
+    objective: str
+    margin: float
+    interval: float
+    horizon: float | None
+    torque_max: float
+    start_x: float | None
+    guess: str
+    speed: float
+    regularization: float
+    inputs: dict = field(default_factory=dict)
+    max_iter: int = 200
+    tol: float = 1e-6
+    integrator_tol: float = 1e-8
+    path: str = ""
+
+
+def _fail(path, key, reason):
+    raise ProblemError(f"{path}: key '{key}': {reason}")
+
+
+def _number(path, key, value, lo=None, hi=None, positive=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        _fail(path, key, f"expected a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        _fail(path, key, f"must be finite, got {value}")
+    if positive and value <= 0:
+        _fail(path, key, f"must be > 0, got {value:g}")
+    if lo is not None and value < lo:
+        _fail(path, key, f"must be >= {lo:g}, got {value:g}")
+    if hi is not None and value > hi:
+        _fail(path, key, f"must be <= {hi:g}, got {value:g}")
+    return value
+
+
+def _choice(path, key, value, choices):
+    if value not in choices:
+        _fail(path, key, f"must be one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
+def _scene_choices() -> list[str]:
+    """The shipped scenes the optimizer takes: planar, compliant, torque inputs straight to the wheels."""
+    out = []
+    for name in shipped():
+        opt = load_shipped(name).options
+        if opt.dims == "2d" and opt.contact == "compliant" and not opt.drives and not opt.locked_wheels:
+            out.append(name)
+    return out
+
+
+def parse(data: dict, path: str = "<problem>") -> Problem:
+    for key in data:
+        if key not in TOP_KEYS:
+            _fail(path, key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")
+    for key in ("scene", "objective", "margin", "interval"):
+        if key not in data:
+            _fail(path, key, "missing")
+    scene = _choice(path, "scene", data["scene"], _scene_choices())
+    objective = _choice(path, "objective", data["objective"], OBJECTIVES)
+    name = data.get("name", Path(path).stem if path != "<problem>" else f"{scene}_{objective}")
+    if not isinstance(name, str) or not name or "/" in name:
+        _fail(path, "name", f"expected a file name without '/', got {name!r}")
+    margin = _number(path, "margin", data["margin"], -2.0, 5.0)
+    interval = _number(path, "interval", data["interval"], 0.01, 1.0)
+    if abs(interval / REPLAY_STEP - round(interval / REPLAY_STEP)) > 1e-9:
+        _fail(path, "interval", f"must be a whole number of the replay step {REPLAY_STEP} s, got {interval:g}")
+    horizon = None
+    if "horizon" in data:
+        horizon = _number(path, "horizon", data["horizon"], positive=True, hi=60.0)
+        if horizon < 2 * interval:
+            _fail(path, "horizon", f"must hold at least two intervals ({2 * interval:g} s), got {horizon:g}")
+    torque_max = _number(path, "torque_max", data.get("torque_max", DEFAULTS["drive_stall_torque"]),
+                         positive=True, hi=100.0)
+    start_x = _number(path, "start_x", data["start_x"], -5.0, 5.0) if "start_x" in data else None
+    guess = _choice(path, "guess", data.get("guess", "inverse_kinematics"), tuple(GUESSES))
+    speed = _number(path, "speed", data.get("speed", 0.2), 0.05, 0.5)
+    reg = _number(path, "regularization", data.get("regularization", 1e-3), 0.0, 1.0)
+    problem = Problem(name, scene, objective, margin, interval, horizon, torque_max, start_x, guess, speed, reg,
+                      path=str(path))
+    problem.inputs = _inputs(path, data.get("inputs", {}), scene)
+    solver = data.get("solver", {})
+    if not isinstance(solver, dict):
+        _fail(path, "solver", "must be a table")
+    for key, value in solver.items():
+        k = f"solver.{key}"
+        if key == "max_iter":
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 10000:
+                _fail(path, k, f"expected an integer in 1..10000, got {value!r}")
+            problem.max_iter = value
+        elif key == "tol":
+            problem.tol = _number(path, k, value, 1e-12, 1e-2)
+        elif key == "integrator_tol":
+            problem.integrator_tol = _number(path, k, value, 1e-14, 1e-4)
+        else:
+            _fail(path, k, f"unknown key (known: {', '.join(sorted(SOLVER_KEYS))})")
+    return problem
+
+
+def _inputs(path, table, scene) -> dict:
+    if not isinstance(table, dict):
+        _fail(path, "inputs", "must be a table")
+    known = {q.name: q for q in load_shipped(scene).model().inputs if not q.name.startswith("tau[")}
+    values = {}
+    for key, value in table.items():
+        if key not in known:
+            _fail(path, f"inputs.{key}", f"not an input of scene {scene} other than the torques "
+                  f"(inputs: {', '.join(known)})")
+        q = known[key]
+        values[key] = _number(path, f"inputs.{key}", value, q.min, q.max)
+    return values
+
+
+def load(path) -> Problem:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ProblemError(f"{path}: cannot read: {e.strerror}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ProblemError(f"{path}: not valid TOML: {e}") from None
+    return parse(data, str(path))
+
+
+# ---------------- the equations ----------------
+def _compiled(functions: list[ca.Function], stem: str) -> Path:
+    """The functions as C (CasADi's code generator) in one shared library, compiled once per generated source."""
+    from cedra.mechanics.rim import HOST_DIR
+    cg = ca.CodeGenerator(f"{stem}.c", {"with_header": False})
+    for fn in functions:
+        cg.add(fn)
+    code = cg.dump()
+    lib = HOST_DIR / f"lib{stem}_{hashlib.sha256(code.encode()).hexdigest()[:16]}.so"
+    if not lib.exists():
+        HOST_DIR.mkdir(parents=True, exist_ok=True)
+        src = lib.with_suffix(".c")
+        src.write_text(code)
+        tmp = lib.with_suffix(f".{time.time_ns()}.tmp")       # parallel builds: compile, then rename
+        subprocess.run(["gcc", "-O1", "-fPIC", "-shared", str(src), "-o", str(tmp), "-lm"], check=True,
+                       capture_output=True)
+        tmp.replace(lib)
+    return lib
+
+
+class Dynamics:
+    """The scene's planar equations as CasADi functions of the state x = [q; u], the four torque decisions and the
+    problem's constant inputs and parameters."""
+
+    def __init__(self, problem: Problem):
+        self.scene = load_shipped(problem.scene)
+        self.model = m = self.scene.model()
+        self.par = m.default_par(**self.scene.parameters)
+        self.inp = m.default_inp(**(self.scene.inputs | problem.inputs))
+        self.nq = m.q.numel()
+        self.nx = 2 * self.nq
+        frozen = ca.vertcat(*[s for s, _ in m._frozen]) if m._frozen else ca.SX(0, 1)
+        searched = ca.vertcat(*[e for _, e in m._frozen]) if m._frozen else ca.SX(0, 1)
+        x = ca.vertcat(m.q, m.u)
+        f = m.f + (m.chassis_force if m.chassis else 0)
+        ode = ca.vertcat(m.u, ca.solve(m.M, f))
+        jac = ca.jacobian(ode, ca.vertcat(x, m.inp))
+        body = ca.Function("opt_ode", [x, m.inp, m.par, frozen], [ode], {"cse": True})
+        # CasADi's name for the derivative of an external: jac_<name>(inputs, outputs) -> d outputs / d inputs
+        body_jac = ca.Function("jac_opt_ode", [x, m.inp, m.par, frozen, ca.SX.sym("out", self.nx)],
+                               [jac[:, :self.nx], jac[:, self.nx:], ca.SX(self.nx, self.par.size),
+                                ca.SX(self.nx, frozen.numel())], {"cse": True})
+        self.ode_c = ca.external("opt_ode", str(_compiled([body, body_jac], f"cedra_opt_{self.scene.name}")))
+        self.search = ca.Function("opt_search", [m.q, m.inp, m.par], [searched])
+        self.frozen = frozen
+        forces = [(m.contacts[k - 1]["Fn"], m.contacts[k - 1]["Fx"]) for k in WHEELS]
+        self.forces_sx = ca.Function("opt_forces", [x, m.inp, m.par, frozen],
+                                     [ca.vertcat(*[a for a, _ in forces]), ca.vertcat(*[b for _, b in forces])])
+
+    def inputs(self, tau4):
+        """The scene's input vector with the four torque decisions put in as tau[1..6]."""
+        rest = ca.DM(self.inp[6:])
+        return ca.vertcat(*[tau4[k] for k in PAIRS], rest)
+
+    def _searched(self, x, inp):
+        # the contact search's results enter as constants of differentiation, as in the model's own Jacobians
+        return ca.stop_diff(self.search(x[:self.nq], inp, ca.DM(self.par)), 1) if self.frozen.numel() else ca.MX(0, 1)
+
+    def ode(self, x, tau4):
+        inp = self.inputs(tau4)
+        # second derivatives are declared zero: the compiled library holds first derivatives only
+        return ca.stop_diff(self.ode_c(x, inp, ca.DM(self.par), self._searched(x, inp)), 2)
+
+    def forces(self, x):
+        """(Fn, Fx) of wheels 1, 2, 5, 6 at state x (the FMU's wheel[i].Fn, wheel[i].Fx)."""
+        inp = self.inputs([0, 0, 0, 0])
+        return self.forces_sx(x, inp, ca.DM(self.par), self._searched(x, inp))
+
+    def integrator(self, tol: float, n_out: int = 1) -> ca.Function:
+        """x(1) from x(0) under dx/ds = dt ode(x, tau4), p = [tau4; dt]: one interval of length dt (a decision
+        for the time objective); n_out > 1: the states at n_out equally spaced points of the interval."""
+        x, p = ca.MX.sym("x", self.nx), ca.MX.sym("p", 5)
+        grid = list(np.linspace(0, 1, n_out + 1)[1:])
+        return ca.integrator("shoot", "cvodes", {"x": x, "p": p, "ode": p[4] * self.ode(x, p[:4])}, 0, grid,
+                             {"abstol": tol, "reltol": tol, "fsens_err_con": False, "max_num_steps": 100000,
+                              "show_eval_warnings": False})
+
+
+# ---------------- controller runs, the initial guess, the replay ----------------
+def plant_values(problem: Problem, dyn: Dynamics) -> dict:
+    v = dict(problem.inputs)
+    if problem.start_x is not None:
+        v["start.x"] = problem.start_x
+    return v
+
+
+def controller_run(problem: Problem, dyn: Dynamics, mode: str, stop_time: float, build_dir):
+    """The drive controller in mode `mode` on the scene's FMU from the problem's start (cedra.run.cosim)."""
+    from cedra.run.cosim import DriveLoop
+    from cedra.run.scenario import fmu
+    loop = DriveLoop(fmu(problem.scene, build_dir), fmu("drive2d", build_dir), plant_values=plant_values(problem, dyn),
+                     controller_values={"ctrl.mode": GUESSES[mode], "ctrl.tau_max": problem.torque_max})
+    try:
+        r = loop.run(stop_time, REPLAY_STEP, lambda t: {"cmd.v": problem.speed}, record_names())
+    finally:
+        loop.close()
+    return r
+
+
+def record_names() -> list[str]:
+    states = ["body.x", "body.z", "body.pitch", "bogie.theta[1]", "fork.theta4", "body.vx", "body.vz", "body.wy",
+              "bogie.rate[1]", "fork.rate4"]
+    return (states + [f"wheel[{k}].omega" for k in WHEELS] + [f"wheel[{k}].{q}" for k in WHEELS for q in ("Fn", "Fx")]
+            + [f"tau[{k}]" for k in range(1, 7)] + ["energy.work"])
+
+
+def states_of(names, rows) -> np.ndarray:
+    """The model state [q; u] at each recorded row: the coordinates and rates are outputs of the FMU (body.wy is
+    the pitch rate in the plane), the wheel angles the integral of their rates (they enter no force)."""
+    col = {n: rows[:, k] for k, n in enumerate(names)}
+    t = col["time"]
+    omega = np.array([col[f"wheel[{k}].omega"] for k in WHEELS])
+    gamma = np.concatenate([np.zeros((4, 1)), np.cumsum(0.5 * (omega[:, 1:] + omega[:, :-1]) * np.diff(t), axis=1)],
+                           axis=1)
+    q = np.array([col["body.x"], col["body.z"], col["body.pitch"], col["bogie.theta[1]"], col["fork.theta4"], *gamma])
+    u = np.array([col["body.vx"], col["body.vz"], col["body.wy"], col["bogie.rate[1]"], col["fork.rate4"], *omega])
+    return np.vstack([q, u])
+
+
+def goal(problem: Problem, dyn: Dynamics) -> float:
+    return float(dyn.inp[[q.name for q in dyn.model.inputs].index("terrain_x0")]) + problem.margin
+
+
+def measures(names, rows, goal_x: float) -> dict:
+    """What the report compares, from one FMU run recorded every REPLAY_STEP: the arrival time (body.x first at
+    the goal), and up to it the energy integral of sum tau_i^2 (each row's torque held over the next step), the peak
+    |Fx| / Fn over wheels carrying more than FN_MIN and the motors' mechanical work."""
+    col = {n: rows[:, k] for k, n in enumerate(names)}
+    t, x = col["time"], col["body.x"]
+    arrived = np.nonzero(x >= goal_x - ARRIVAL_TOL)[0]
+    k_end = int(arrived[0]) if arrived.size else len(t) - 1
+    dt = np.diff(t)[:k_end]
+    tau2 = sum(col[f"tau[{k}]"][:k_end] ** 2 for k in range(1, 7))
+    fn = np.array([col[f"wheel[{k}].Fn"][:k_end + 1] for k in WHEELS])
+    fx = np.array([col[f"wheel[{k}].Fx"][:k_end + 1] for k in WHEELS])
+    loaded = fn > FN_MIN
+    return dict(arrived=bool(arrived.size), time=float(t[k_end]), energy=float(np.sum(tau2 * dt)),
+                peak_friction=float(np.max(np.abs(fx[loaded]) / fn[loaded])) if loaded.any() else 0.0,
+                work=float(col["energy.work"][k_end]),
+                peak_torque=float(max(np.abs(col[f"tau[{k}]"][:k_end + 1]).max() for k in range(1, 7))))
+
+
+def replay(problem: Problem, dyn: Dynamics, x0, torques: np.ndarray, dt: float, build_dir, solver: dict | None = None):
+    """The optimal torques open loop through the scene's FMU from the optimizer's start state x0 (not settled
+    again), held over each interval, recorded every REPLAY_STEP. Returns (names, rows, ok)."""
+    from cedra.run.driver import RoverFMU
+    from cedra.run.scenario import fmu
+    plant = RoverFMU(fmu(problem.scene, build_dir), "replay")
+    names = ["time"] + record_names()
+    q_names = dyn.model.q_names
+    values = dict(problem.inputs) | {"start.settle": False} | dict(solver or {})
+    values |= {f"start.{n}": float(x0[k]) for k, n in enumerate(q_names)}
+    values |= {f"start.speed.{n}": float(x0[dyn.nq + k]) for k, n in enumerate(q_names)}
+    n_sub = int(round(dt / REPLAY_STEP))
+    h = dt / n_sub
+    rows, ok = [], True
+    try:
+        plant.start(values)
+        for k in range(len(torques) * n_sub + 1):
+            tau = torques[min(k // n_sub, len(torques) - 1)]
+            plant.set({f"tau[{i + 1}]": tau[PAIRS[i]] for i in range(6)})
+            out = plant.get([n for n in record_names() if not n.startswith("tau[")])
+            rows.append(np.concatenate([[k * h], out[:names.index("tau[1]") - 1], [tau[p] for p in PAIRS], out[-1:]]))
+            if k == len(torques) * n_sub:
+                break
+            if not plant.step((k + 1) * h):
+                ok = False
+                break
+    finally:
+        plant.close()
+    return names, np.array(rows), ok
+
+
+def model_path(dyn: Dynamics, x0, torques, dt, tol) -> np.ndarray:
+    """The optimizer's own trajectory at every REPLAY_STEP: its integrator from x0 over the optimal torques (the
+    states at the replay's communication points)."""
+    n_sub = int(round(dt / REPLAY_STEP))
+    F = dyn.integrator(tol, n_sub)
+    xs, x = [np.asarray(x0, float)], np.asarray(x0, float)
+    for tau in torques:
+        r = np.array(F(x0=x, p=np.r_[tau, dt])["xf"])
+        xs += list(r.T)
+        x = r[:, -1]
+    return np.array(xs).T
+
+
+# ---------------- the optimal control problem ----------------
+def initial_guess(names, rows, n: int, dt: float):
+    """States at the grid nodes and each interval's mean torques per wheel pair, from a controller run recorded
+    every REPLAY_STEP (held at its last row beyond its end)."""
+    X = states_of(names, rows)
+    col = {nm: rows[:, k] for k, nm in enumerate(names)}
+    per = int(round(dt / REPLAY_STEP))
+    idx = np.minimum(np.arange(n + 1) * per, rows.shape[0] - 1)
+    pair = [0.5 * (col["tau[1]"] + col["tau[3]"]), 0.5 * (col["tau[2]"] + col["tau[4]"]), col["tau[5]"], col["tau[6]"]]
+    U = np.array([[np.mean(p[min(k * per, len(p) - 1):min((k + 1) * per, len(p))] if k * per < len(p) else p[-1])
+                   for p in pair] for k in range(n)])
+    return X[:, idx], U
+
+
+def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float, goal_x: float,
+          log: bool = False) -> dict:
+    """Multiple shooting: decisions X_0..X_N (X_0 fixed at x0), U_0..U_{N-1} (four torques each), the interval
+    length dt (free for the time objective), the epigraph s (peak_friction). IPOPT, limited-memory Hessian."""
+    n, nx = U_guess.shape[0], dyn.nx
+    X = ca.MX.sym("X", nx, n + 1)
+    U = ca.MX.sym("U", 4, n)
+    dt = ca.MX.sym("dt")
+    s = ca.MX.sym("s")
+    F = dyn.integrator(problem.integrator_tol).map(n, "serial")
+    xf = F(x0=X[:, :n], p=ca.vertcat(U, ca.repmat(dt, 1, n)))["xf"]
+    weights = ca.DM([2, 2, 1, 1])              # tau[1] = tau[3], tau[2] = tau[4]: each pair's torque counts twice
+    energy = dt * ca.sum2(ca.mtimes(weights.T, U ** 2))
+    g = [ca.vec(xf - X[:, 1:]), X[0, n] - goal_x]
+    lbg = [np.zeros(nx * n), [0.0]]
+    ubg = [np.zeros(nx * n), [np.inf]]
+    if problem.objective == "energy":
+        J = energy
+    elif problem.objective == "time":
+        J = n * dt + problem.regularization * energy
+    else:
+        fn, fx = _node_forces(dyn, X[:, 1:])
+        g += [ca.vec(fx - s * fn), ca.vec(-fx - s * fn)]
+        lbg += [np.full(2 * 4 * n, -np.inf)]
+        ubg += [np.zeros(2 * 4 * n)]
+        J = s + problem.regularization * energy
+    w = ca.vertcat(ca.vec(X), ca.vec(U), dt, s)
+    lo, hi = state_bounds(dyn)
+    x_lo = np.tile(lo[:, None], (1, n + 1))
+    x_hi = np.tile(hi[:, None], (1, n + 1))
+    x_lo[:, 0] = x_hi[:, 0] = x0
+    u_bound = np.full((4, n), problem.torque_max)
+    if problem.objective == "time":
+        dt_lo, dt_hi = 0.25 * dt_guess, 2.0 * dt_guess
+    else:
+        dt_lo = dt_hi = dt_guess
+    lbw = np.concatenate([x_lo.ravel(order="F"), -u_bound.ravel(order="F"), [dt_lo], [0.0]])
+    ubw = np.concatenate([x_hi.ravel(order="F"), u_bound.ravel(order="F"), [dt_hi],
+                          [np.inf if problem.objective == "peak_friction" else 0.0]])
+    s0 = 1.0 if problem.objective == "peak_friction" else 0.0
+    w0 = np.concatenate([X_guess.ravel(order="F"), np.clip(U_guess.T, -problem.torque_max,
+                                                          problem.torque_max).ravel(order="F"), [dt_guess], [s0]])
+    nlp = {"x": w, "f": J, "g": ca.vertcat(*g)}
+    opts = {"ipopt": {"max_iter": problem.max_iter, "tol": problem.tol, "hessian_approximation": "limited-memory",
+                      "print_level": 5 if log else 0, "sb": "yes",
+                      # the sensitivities carry no jump term where a contact law switches (see the module
+                      # docstring), which keeps the dual infeasibility at 1e-3..1e-2 near the optimum: stop there
+                      # once the objective has levelled off, with the shooting defects closed
+                      "acceptable_tol": 1e-2, "acceptable_iter": 3, "acceptable_obj_change_tol": 1e-3,
+                      "acceptable_constr_viol_tol": 1e-5}, "print_time": False}
+    solver = ca.nlpsol("climb", "ipopt", nlp, opts)
+    t0 = time.perf_counter()
+    sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg))
+    wall = time.perf_counter() - t0
+    stats = solver.stats()
+    wv = np.array(sol["x"]).ravel()
+    Xo = wv[:nx * (n + 1)].reshape((nx, n + 1), order="F")
+    Uo = wv[nx * (n + 1):nx * (n + 1) + 4 * n].reshape((4, n), order="F").T
+    return dict(X=Xo, U=Uo, dt=float(wv[-2]), s=float(wv[-1]), objective=float(sol["f"]), wall=wall,
+                iterations=int(stats["iter_count"]), status=stats["return_status"], success=bool(stats["success"]))
+
+
+def state_bounds(dyn: Dynamics) -> tuple[np.ndarray, np.ndarray]:
+    """Generous bounds on the nodes' states that keep IPOPT's trial points in the model's domain: the joints a
+    little beyond their stops (the stops are springs), the pitch well inside the FMU's 80 deg tip-over limit, the
+    rates beyond anything a climb at these torques reaches. Without them a long trial step puts the four-bar
+    through its toggle, where the equations have no value."""
+    p = dict(zip([q.name for q in dyn.model.params], dyn.par))
+    span = {"pitch": (-1.0, 1.0), "theta1": (-p["bogie_stop"] - 0.2, p["bogie_stop"] + 0.2),
+            "theta4": (p["fork_stop_lo"] - 0.2, p["fork_stop_hi"] + 0.2)}
+    names = dyn.model.q_names
+    inf = (-np.inf, np.inf)
+    rate = [RATE_MAX if nm.startswith("gamma") else SPEED_MAX for nm in names]
+    lo = [span.get(nm, inf)[0] for nm in names] + [-r for r in rate]
+    hi = [span.get(nm, inf)[1] for nm in names] + rate
+    return np.array(lo), np.array(hi)
+
+
+def _node_forces(dyn: Dynamics, X):
+    fn, fx = [], []
+    for k in range(X.shape[1]):
+        a, b = dyn.forces(X[:, k])
+        fn.append(a)
+        fx.append(b)
+    return ca.horzcat(*fn), ca.horzcat(*fx)
+
+
+# ---------------- the command ----------------
+CONTROLLER_STOP = 40.0       # s: the controllers' runs stop here if they have not arrived
+
+
+def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
+    """Solve the problem, replay the optimum through the FMU, run the controllers, write the report; returns the
+    summary (also <out>/result.json)."""
+    say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
+    t_start = time.perf_counter()
+    dyn = Dynamics(problem)
+    goal_x = goal(problem, dyn)
+    runs = {}
+    for mode in GUESSES:
+        stop = max(CONTROLLER_STOP, 3 * (problem.horizon or 0))
+        r = controller_run(problem, dyn, mode, stop, build_dir)
+        runs[mode] = (r.names, r.rows, measures(r.names, r.rows, goal_x))
+        say(f"{mode}: arrives {_arrival(runs[mode][2])}, energy {runs[mode][2]['energy']:.3f} N^2.m^2.s, "
+            f"peak |Fx|/Fn {runs[mode][2]['peak_friction']:.3f}")
+    names, rows, m_guess = runs[problem.guess]
+    dt = problem.interval
+    horizon = problem.horizon or (math.ceil(m_guess["time"] / dt - 1e-9) * dt if m_guess["arrived"] else None)
+    if horizon is None:
+        raise RuntimeError(f"the {problem.guess} run did not reach body.x = {goal_x:g} m in {CONTROLLER_STOP:g} s: "
+                           "give the problem a horizon")
+    n = int(round(horizon / dt))
+    X_guess, U_guess = initial_guess(names, rows, n, dt)
+    x0 = X_guess[:, 0]
+    say(f"solving: {n} intervals of {dt:g} s, objective {problem.objective}, from the {problem.guess} run")
+    result = solve(problem, dyn, x0, X_guess, U_guess, dt, goal_x, log=not quiet)
+    say(f"IPOPT: {result['status']} after {result['iterations']} iterations, {result['wall']:.1f} s")
+    replay_names, replay_rows, replay_ok = replay(problem, dyn, x0, result["U"], result["dt"], build_dir)
+    path = model_path(dyn, x0, result["U"], result["dt"], problem.integrator_tol)
+    k = min(path.shape[1], replay_rows.shape[0])
+    col = {nm: replay_rows[:k, j] for j, nm in enumerate(replay_names)}
+    deviation = float(np.max(np.hypot(col["body.x"] - path[0, :k], col["body.z"] - path[1, :k])))
+    m_opt = measures(replay_names, replay_rows, goal_x)
+    summary = dict(problem=problem.name, scene=problem.scene, objective=problem.objective, goal_x=goal_x,
+                   intervals=n, interval=dt, horizon=n * result["dt"], torque_max=problem.torque_max,
+                   integrator_tol=problem.integrator_tol, iterations=result["iterations"], status=result["status"],
+                   success=result["success"], solve_time=result["wall"], nlp_objective=result["objective"],
+                   replay_ok=replay_ok, replay_deviation=deviation, optimum=m_opt,
+                   controllers={mode: runs[mode][2] for mode in GUESSES}, guess=problem.guess,
+                   final_x_optimizer=float(result["X"][0, -1]), wall=time.perf_counter() - t_start)
+    _write(Path(out_dir), problem, summary, result, path, (replay_names, replay_rows), runs)
+    say(f"replay through the FMU: body path within {deviation:.2e} m of the optimizer's; "
+        f"optimum energy {m_opt['energy']:.3f}, peak |Fx|/Fn {m_opt['peak_friction']:.3f}, "
+        f"arrives {_arrival(m_opt)} -> {out_dir}")
+    return summary
+
+
+def _arrival(m: dict) -> str:
+    return f"t = {m['time']:.2f} s" if m["arrived"] else "never"
+
+
+def _write(out: Path, problem: Problem, summary: dict, result: dict, path, replayed, runs):
+    import json
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
+    t = np.arange(result["U"].shape[0]) * result["dt"]
+    np.savetxt(out / "torques.csv", np.column_stack([t, result["U"]]), delimiter=",", fmt="%.10g",
+               header="t_start,tau1_tau3,tau2_tau4,tau5,tau6", comments="")
+    _figure(out / "climb.png", summary, result, path, replayed, runs)
+    (out / "report.md").write_text(report_text(problem, summary))
+
+
+def _figure(file: Path, summary, result, path, replayed, runs):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axs = plt.subplots(3, 1, figsize=(9, 9))
+    n, dt = result["U"].shape[0], result["dt"]
+    tt = np.arange(n + 1) * dt
+    for j, label in enumerate(["tau[1] = tau[3]", "tau[2] = tau[4]", "tau[5]", "tau[6]"]):
+        axs[0].step(tt, np.r_[result["U"][:, j], result["U"][-1, j]], where="post", label=label)
+    axs[0].set_ylabel("optimal torque [N.m]")
+    axs[0].set_xlabel("time [s]")
+    axs[0].legend(fontsize=8, ncol=4)
+    axs[0].set_title(f"{summary['problem']}: {summary['objective']}, {summary['status']}, "
+                     f"{summary['iterations']} iterations")
+    names, rows = replayed
+    col = {nm: rows[:, j] for j, nm in enumerate(names)}
+    for mode, (nm, rw, _) in runs.items():
+        c = {a: rw[:, j] for j, a in enumerate(nm)}
+        axs[1].plot(c["body.x"], c["body.z"], lw=1, label=mode.replace("_", " "))
+    axs[1].plot(path[0], path[1], "k", lw=2, label="optimum (optimizer)")
+    axs[1].plot(col["body.x"], col["body.z"], "r--", lw=1, label="optimum (FMU replay)")
+    axs[1].axvline(summary["goal_x"], color="gray", ls=":", label="goal")
+    axs[1].set_xlim(min(path[0]) - 0.1, summary["goal_x"] + 0.2)
+    axs[1].set_xlabel("body.x [m]")
+    axs[1].set_ylabel("body.z [m]")
+    axs[1].legend(fontsize=8)
+    k = min(path.shape[1], rows.shape[0])
+    axs[2].semilogy(col["time"][:k], np.maximum(np.hypot(col["body.x"][:k] - path[0, :k],
+                                                          col["body.z"][:k] - path[1, :k]), 1e-12))
+    axs[2].set_ylabel("|FMU - optimizer| body (x, z) [m]")
+    axs[2].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(file, dpi=90)
+    plt.close(fig)
+
+
+def report_text(problem: Problem, s: dict) -> str:
+    rows = [("optimum (FMU replay)", s["optimum"])] + [(f"{m.replace('_', ' ')} controller", v)
+                                                        for m, v in s["controllers"].items()]
+    lines = [f"# Optimal climb: {s['problem']}", "",
+             f"Scene {s['scene']}, objective `{s['objective']}`, goal body.x >= {s['goal_x']:.3f} m, "
+             f"|tau| <= {s['torque_max']:g} N.m, {s['intervals']} intervals of {s['horizon'] / s['intervals']:.4g} s "
+             f"(horizon {s['horizon']:.3f} s), initial guess: the {s['guess'].replace('_', ' ')} run.", "",
+             "## Solve", "",
+             f"- IPOPT: **{s['status']}** after {s['iterations']} iterations, {s['solve_time']:.1f} s "
+             f"(whole command {s['wall']:.1f} s); NLP objective {s['nlp_objective']:.6g}",
+             f"- shooting integrator: CVODES, abstol = reltol = {s['integrator_tol']:g}",
+             f"- replay through the FMU (open loop, the scene's own solver settings): "
+             f"{'completed' if s['replay_ok'] else 'STOPPED EARLY'}; the body path (x, z) stays within "
+             f"**{s['replay_deviation']:.2e} m** of the optimizer's "
+             f"({'holds' if s['replay_deviation'] <= 1e-4 else 'DOES NOT hold'} the 1e-4 m agreement)", "",
+             "## Against the controllers (same FMU, same measures)", "",
+             "Measured on the FMU runs recorded every 0.01 s, up to the arrival (body.x first at the goal). "
+             "energy: the integral of sum tau_i^2 over the six wheels; peak |Fx|/Fn: over wheels carrying more "
+             f"than {FN_MIN:g} N; work: the motors' mechanical work (energy.work).", "",
+             "| run | arrives | energy [N^2.m^2.s] | peak abs(Fx)/Fn | work [J] | peak torque [N.m] |",
+             "|---|---|---|---|---|---|"]
+    for label, m in rows:
+        lines.append(f"| {label} | {_arrival(m)} | {m['energy']:.3f} | {m['peak_friction']:.3f} | {m['work']:.3f} "
+                     f"| {m['peak_torque']:.2f} |")
+    lines += ["", "![optimal torques and trajectory](climb.png)", "",
+              f"Reproduce: `python -m cedra optimize {problem.path}`", ""]
+    return "\n".join(lines)
+
+
+def add_parser(sub):
+    p = sub.add_parser("optimize", help="optimal wheel torques over an obstacle (direct multiple shooting, IPOPT), "
+                       "replayed through the FMU")
+    p.add_argument("problem", help="a problem .toml (examples/optimize/)")
+    p.add_argument("--out", default=None, help="output directory (default: out/optimize/<name>)")
+    p.add_argument("--build", default="build", help="where the FMUs are (built there if missing)")
+    p.add_argument("--quiet", action="store_true")
+
+
+def main(args) -> int:
+    import sys
+    try:
+        problem = load(args.problem)
+    except (ProblemError, SceneError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    summary = run(problem, args.out or f"out/optimize/{problem.name}", args.build, args.quiet)
+    return 0 if summary["success"] else 1

@@ -1,0 +1,96 @@
+"""python -m cedra optimize: bad problem files fail before anything runs, naming the file, the key and the reason;
+the shipped problem files load; one short real solve converges and its open-loop replay through the FMU follows
+the optimizer's body path."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cedra.run import optimize
+
+REPO = Path(__file__).resolve().parents[1]
+BUILD = REPO / "build"
+GOOD = 'scene = "bump2d"\nobjective = "energy"\nmargin = 0.4\ninterval = 0.1\n'
+
+
+@pytest.mark.parametrize("text, key, reason", [
+    (GOOD + "horizn = 5.0\n", "horizn", "unknown key"),
+    (GOOD.replace('"bump2d"', '"mars2d"'), "scene", "must be one of"),
+    (GOOD.replace('"bump2d"', '"bump3d"'), "scene", "must be one of"),           # 3D: not the planar model
+    (GOOD.replace('"bump2d"', '"bump2d_drives"'), "scene", "must be one of"),    # torques through the drives
+    (GOOD.replace('"energy"', '"speed"'), "objective", "must be one of"),
+    (GOOD.replace("margin = 0.4\n", ""), "margin", "missing"),
+    (GOOD.replace("margin = 0.4", 'margin = "far"'), "margin", "expected a number"),
+    (GOOD.replace("interval = 0.1", "interval = 0.055"), "interval", "whole number of the replay step"),
+    (GOOD.replace("interval = 0.1", "interval = 0.0"), "interval", "must be >= 0.01"),
+    (GOOD + "horizon = 0.1\n", "horizon", "at least two intervals"),
+    (GOOD + "torque_max = -1.0\n", "torque_max", "must be > 0"),
+    (GOOD + "guess = \"random\"\n", "guess", "must be one of"),
+    (GOOD + "[inputs]\ntau1 = 2.0\n", "inputs.tau1", "not an input of scene bump2d"),
+    (GOOD + "[inputs]\n\"tau[1]\" = 2.0\n", "inputs.tau[1]", "not an input of scene bump2d"),
+    (GOOD + "[inputs]\nmu = -0.5\n", "inputs.mu", "must be >= 0"),
+    (GOOD + "[solver]\nmax_iter = 2.5\n", "solver.max_iter", "expected an integer"),
+    (GOOD + "[solver]\nintegrator_tol = 0.1\n", "solver.integrator_tol", "must be <="),
+    (GOOD + "[solver]\nmethod = \"sqp\"\n", "solver.method", "unknown key"),
+])
+def test_bad_problem_names_file_and_key(tmp_path, text, key, reason):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(optimize.ProblemError) as e:
+        optimize.load(path)
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: key '{key}': "), msg
+    assert reason in msg, msg
+
+
+def test_unreadable_and_invalid_toml(tmp_path):
+    with pytest.raises(optimize.ProblemError, match="cannot read"):
+        optimize.load(tmp_path / "missing.toml")
+    bad = tmp_path / "broken.toml"
+    bad.write_text("scene = \n")
+    with pytest.raises(optimize.ProblemError, match=f"{bad}: not valid TOML"):
+        optimize.load(bad)
+
+
+def test_cli_fails_before_running(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text(GOOD.replace('"energy"', '"speed"'))
+    r = subprocess.run([sys.executable, "-m", "cedra", "optimize", str(path), "--out", str(tmp_path / "out"),
+                        "--build", str(tmp_path / "no_build")], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 2
+    assert f"{path}: key 'objective'" in r.stderr
+    assert not (tmp_path / "out").exists() and not (tmp_path / "no_build").exists()
+
+
+def test_shipped_problems_load():
+    files = sorted((REPO / "examples" / "optimize").glob("*.toml"))
+    assert files
+    for f in files:
+        p = optimize.load(f)
+        assert p.objective in optimize.OBJECTIVES
+
+
+def test_short_solve_converges_and_replays(tmp_path):
+    """The front wheels onto the bump's foot: 0.8 s, 4 intervals of 0.2 s, from the IK controller's run. The
+    replay and the comparison are checked first, convergence last."""
+    path = tmp_path / "short.toml"
+    path.write_text('scene = "bump2d"\nobjective = "energy"\nmargin = -0.5\ninterval = 0.2\nstart_x = 0.4\n'
+                    'horizon = 0.8\n[solver]\nmax_iter = 60\n')
+    s = optimize.run(optimize.load(path), tmp_path / "out", BUILD, quiet=True)
+    assert s["intervals"] == 4
+    assert s["replay_ok"]
+    assert s["replay_deviation"] < 1e-4
+    for f in ("report.md", "climb.png", "result.json", "torques.csv"):
+        assert (tmp_path / "out" / f).exists()
+    tau = np.loadtxt(tmp_path / "out" / "torques.csv", delimiter=",", skiprows=1)
+    assert tau.shape == (4, 5)
+    assert np.abs(tau[:, 1:]).max() <= 6.0 + 1e-6
+    # the controller's own run is feasible for the same problem, so the optimum spends no more energy than it
+    assert s["optimum"]["energy"] <= s["controllers"]["inverse_kinematics"]["energy"]
+    assert s["final_x_optimizer"] >= s["goal_x"] - 1e-5
+    assert s["optimum"]["arrived"]
+    assert s["success"], s["status"]
