@@ -297,6 +297,13 @@ def test_drives_option_runs_the_drives_variant(tmp_path, bump2d_fmu):
             data = src.read(item)
             dst.writestr(item, data + b"\n" if item.filename == "sources/solver.c" else data)
     assert not sw_mod._same_build(changed, spec)
+    from cedra.fmu import packaging                 # other compiler flags today: not the same build either
+    flags = packaging.HAND_WRITTEN_CFLAGS
+    try:
+        packaging.HAND_WRITTEN_CFLAGS = ["-O2"]
+        assert not sw_mod._same_build(variant_fmu, spec)
+    finally:
+        packaging.HAND_WRITTEN_CFLAGS = flags
     mtime = variant_fmu.stat().st_mtime_ns
     assert sw_mod._build(drives, BUILD) == variant_fmu and variant_fmu.stat().st_mtime_ns == mtime
 

@@ -91,6 +91,24 @@ def documentation(spec: ModelSpec) -> str:
     return html_page(spec)
 
 
+FLAGS_FILE = "build_flags.txt"      # sources/: each C file's compiler flags ("<file>: <flags>" per line)
+
+
+def compile_flags(file_name: str, size: int, extra_cflags=()) -> list[str]:
+    """The compiler flags of one C file of an FMU (size: its bytes; the generated model's size picks its level)."""
+    own = HAND_WRITTEN_CFLAGS
+    if file_name == GENERATED_C:
+        own = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="]
+        if size > LARGE_MODEL_BYTES:
+            own += LARGE_MODEL_FLAGS
+    return CFLAGS + own + list(extra_cflags)
+
+
+def flags_text(sizes: dict[str, int], extra_cflags=()) -> str:
+    """The FLAGS_FILE text for C files of these sizes: what a build with these flags packages."""
+    return "".join(f"{f}: {' '.join(compile_flags(f, n, extra_cflags))}\n" for f, n in sorted(sizes.items()))
+
+
 def build_fmu(spec: ModelSpec, build_dir, extra_cflags=()) -> Path:
     """Generate, compile and package the FMU; returns <build_dir>/<spec.name>.fmu. extra_cflags go after CFLAGS
     (e.g. the precision report's baseline build: -D switches of the plant's C)."""
@@ -118,13 +136,9 @@ def build_fmu(spec: ModelSpec, build_dir, extra_cflags=()) -> Path:
         raise BuildError(f"SourceFiles lists files that are not in sources/: {sorted(missing)}")
     # compile
     objects = []
+    sizes = {f: (src / f).stat().st_size for f in c_files}
     for f in c_files:
-        own = HAND_WRITTEN_CFLAGS
-        if f == GENERATED_C:
-            own = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="]
-            if (src / f).stat().st_size > LARGE_MODEL_BYTES:
-                own += LARGE_MODEL_FLAGS
-        flags = CFLAGS + own + list(extra_cflags)
+        flags = compile_flags(f, sizes[f], extra_cflags)
         o = obj / (Path(f).stem + ".o")
         _run([CC, *flags, "-I", str(src), "-c", str(src / f), "-o", str(o)], cwd=tree)
         objects.append(str(o))
@@ -146,6 +160,8 @@ def build_fmu(spec: ModelSpec, build_dir, extra_cflags=()) -> Path:
         for p in sorted(src.iterdir()):
             if p.suffix in (".c", ".h"):
                 z.write(p, f"sources/{p.name}")
+        # how each file was compiled, so that a kept build can be told from one with other flags (sweep variants)
+        z.writestr(f"sources/{FLAGS_FILE}", flags_text(sizes, extra_cflags))
         z.write(doc, "documentation/index.html")
         if spec.heightmap_file:
             z.write(spec.heightmap_file, f"resources/{RESOURCE_NAME}")

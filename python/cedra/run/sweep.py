@@ -687,16 +687,19 @@ def _variant_fmu(scene, build_dir: Path) -> Path:
 
 def _same_build(path: Path, spec) -> bool:
     """Whether the FMU at path is this ModelSpec's (its GUID: the variables and the model functions) from today's
-    hand-written sources (fmu_src)."""
+    hand-written sources (fmu_src), compiled with today's flags (packaging.compile_flags)."""
     import zipfile
     import xml.etree.ElementTree as ET
-    from cedra.fmu.packaging import FMU_SRC, _generator
+    from cedra.fmu.packaging import FLAGS_FILE, FMU_SRC, _generator, flags_text
     try:
         with zipfile.ZipFile(path) as z:
             guid = ET.fromstring(z.read("modelDescription.xml")).get("guid")
+            sources = [n for n in z.namelist() if n.startswith("sources/")]
+            sizes = {Path(n).name: z.getinfo(n).file_size for n in sources if n.endswith(".c")}
             return guid == _generator().spec_guid(spec) and all(
-                z.read(name) == (FMU_SRC / Path(name).name).read_bytes() for name in z.namelist()
-                if name.startswith("sources/") and (FMU_SRC / Path(name).name).is_file())
+                z.read(name) == (FMU_SRC / Path(name).name).read_bytes() for name in sources
+                if (FMU_SRC / Path(name).name).is_file()) and \
+                z.read(f"sources/{FLAGS_FILE}").decode() == flags_text(sizes)
     except (OSError, KeyError, zipfile.BadZipFile, ET.ParseError):
         return False
 
