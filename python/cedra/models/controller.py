@@ -15,8 +15,15 @@ Every `ctrl.period` (default 0.01 s) it reads the commanded forward speed `cmd.v
                    and yaw rate handed to Eq. 13 until the measured ones match the commands (the steering keeps
                    the commanded turn center);
     ctrl.mode = 0  equal torques (the paper's run): one PI on the forward speed (ctrl.speed_kp,
-                   ctrl.speed_ki), the same torque on all six wheels.
-In both modes (3D) the steered wheels get the geometric steering angles (Eqs. 14-22) for (cmd.v, cmd.yaw_rate).
+                   ctrl.speed_ki), the same torque on all six wheels;
+    ctrl.mode = 2  traction control: mode 0's speed PI gives the summed torque (6 times its per-wheel torque),
+                   distributed over the wheels so that the largest friction ratio |T_i| / N_i is as small as
+                   possible under the quasi-static balance at the measured pose (rover.statics): every wheel
+                   gets the same ratio, found by a fixed number of Newton steps (TRACTION_NEWTON_STEPS).
+In every mode (3D) the steered wheels get the geometric steering angles (Eqs. 14-22) for (cmd.v, cmd.yaw_rate),
+and the outputs ctrl.Fn_est[i] give the balance's normal forces for the commanded torques (no force sensor: the
+pose, the contact angles and the torques only). Every mode is evaluated at every sample and the mode selects
+(no branch in the C), so a sample costs the same whatever the mode.
 
 The equations are kinematics.drive_expressions: the same CasADi graph the Python functions evaluate. The FMU
 carries only the generated sample function (no solver, no contact code): fmu_src/controller.c.
@@ -27,29 +34,39 @@ import casadi as ca
 
 from cedra.rover.kinematics import KIN_PARAMS, drive_expressions, drive_symbols
 from cedra.rover.parameters import DEFAULTS, ROVER, STEER_LIMIT
+from cedra.rover.statics import GROUPS, PAIR, STATICS_PARAMS, balance, equal_ratio_tractions, \
+    loads_given_tractions, multiplicity
 from cedra.contract import ModelSpec, Quantity
 
 WHEELS = range(1, 7)
-MODES = {"equal_torques": 0, "inverse_kinematics": 1}
+MODES = {"equal_torques": 0, "inverse_kinematics": 1, "traction_control": 2}
+# Newton steps on the common friction ratio (rover.statics.equal_ratio_tractions): 5 reach the root to 1e-9 of the
+# ratio on the test's random poses, so the cost of a sample is fixed
+TRACTION_NEWTON_STEPS = 5
+# the balance's parameters beyond the kinematics': the controller's own copy of the rover's masses and springs
+CONTROLLER_PARAMS = KIN_PARAMS + tuple(n for n in STATICS_PARAMS if n not in KIN_PARAMS)
 CONTROLLERS = {"drive2d": "2d", "drive3d": "3d"}     # the shipped controller FMUs (build/<name>.fmu) and their dims
 
 
 def _geometry_params() -> list[Quantity]:
     table = {q.name: q for q in ROVER}
     return [Quantity(n, DEFAULTS[n], table[n].unit, table[n].description + " (the controller's kinematics)",
-                     table[n].min, table[n].max) for n in KIN_PARAMS]
+                     table[n].min, table[n].max) for n in CONTROLLER_PARAMS]
 
 
 def params() -> list[Quantity]:
     return [
         Quantity("ctrl.period", 0.01, "s", "sample period of the controller", 1e-6, 1e3),
         Quantity("ctrl.mode", 1, "1", "0 equal torques from a PI on the forward speed (the paper's "
-                 "run); 1 inverse kinematics (Eq. 13) with a PI loop per wheel rate", 0, 1, type="Integer"),
+                 "run); 1 inverse kinematics (Eq. 13) with a PI loop per wheel rate; 2 traction control: the speed "
+                 "PI's summed torque distributed for the least largest friction ratio", 0, 2, type="Integer"),
         Quantity("ctrl.tau_max", 4.0, "N.m", "torque limit of every wheel", 0.0, 1e3),
         Quantity("ctrl.ramp_time", 0.0, "s", "the commands ramp up linearly from 0 over this time after the start "
                  "(0: no ramp, the commands act at once)", 0.0, 1e4),
-        Quantity("ctrl.speed_kp", 3.0, "N.m.s/m", "equal-torque mode: proportional gain on the speed error", 0.0),
-        Quantity("ctrl.speed_ki", 6.0, "N.m/m", "equal-torque mode: integral gain on the speed error", 0.0),
+        Quantity("ctrl.speed_kp", 3.0, "N.m.s/m", "equal-torque and traction modes: proportional gain on the speed "
+                 "error (per wheel)", 0.0),
+        Quantity("ctrl.speed_ki", 6.0, "N.m/m", "equal-torque and traction modes: integral gain on the speed error "
+                 "(per wheel)", 0.0),
         # a slipping wheel's own spin inertia (m_w R_w^2 / 2 = 1e-3 kg.m^2) is what the rate loop drives when the
         # wheel skids: Kp T / J must stay well below 1 at T = 0.01 s, hence a soft Kp; loaded wheels (~0.02 kg.m^2
         # with their share of the rover) then respond in ~0.4 s
@@ -72,6 +89,9 @@ def inputs(dims: str) -> list[Quantity]:
         ins += [Quantity("body.vy", 0.0, "m/s", "measured: body velocity along world Y"),
                 Quantity("body.yaw", 0.0, "rad", "measured: body yaw"),
                 Quantity("body.wz", 0.0, "rad/s", "measured: body yaw rate (angular velocity about world Z)")]
+    ins.append(Quantity("body.pitch", 0.0, "rad", "measured: body pitch (positive nose down)"))
+    if three:
+        ins.append(Quantity("body.roll", 0.0, "rad", "measured: body roll"))
     ins += [Quantity("bogie.theta[1]", 0.0, "rad", "measured: left bogie angle"),
             Quantity("bogie.theta[2]", 0.0, "rad", "measured: right bogie angle"),
             Quantity("fork.theta4", DEFAULTS["fork_theta4_ref"], "rad", "measured: four-bar lower link angle"),
@@ -99,6 +119,10 @@ def outputs(dims: str) -> list[Quantity]:
     outs += [Quantity(f"ctrl.omega_ref[{i}]", 0.0, "rad/s", f"wheel {i} rate from the inverse kinematics (Eq. 13)")
              for i in WHEELS]
     outs.append(Quantity("ctrl.v", 0.0, "m/s", "measured forward speed the controller used"))
+    outs += [Quantity(f"ctrl.Fn_est[{i}]", 0.0, "N", f"wheel {i} normal force the quasi-static balance estimates for "
+                      "the commanded torques") for i in WHEELS]
+    outs.append(Quantity("ctrl.ratio", 0.0, "1", "largest |tau_i| / (R_w Fn_est_i) over the wheels the balance "
+                         "loads: the friction the commanded torques ask for"))
     return outs
 
 
@@ -110,6 +134,48 @@ def _pi(error, integral, kp, ki, limit, period):
 
 STATES = ["speed_integral"] + [f"rate_integral[{k}]" for k in WHEELS] + ["speed_trim", "yaw_trim", "elapsed"]
 TRIM_LIMITS = (1.0, 1.0)    # m/s, rad/s: the trims correct skid and slip, they do not take over the command
+
+
+def _by_mode(mode, equal_torques, inverse_kinematics, traction):
+    """The value of the selected mode (mode 2 and above: traction; the variable's range keeps it within 0..2)."""
+    return ca.if_else(mode < 0.5, equal_torques, ca.if_else(mode < 1.5, inverse_kinematics, traction))
+
+
+def _loads(dims, i, p):
+    """The quasi-static balance at the measured pose: N = N0 + B T per wheel group (rover.statics)."""
+    three = dims == "3d"
+    A, b = balance(dims, i["body.pitch"], i["body.roll"] if three else 0,
+                   ca.vertcat(i["bogie.theta[1]"], i["bogie.theta[2]"], i["fork.theta4"]),
+                   ca.vertcat(i["steer.theta[1]"], i["steer.theta[2]"]) if three else ca.DM.zeros(2),
+                   ca.vertcat(*[i[f"wheel[{k}].psi_R"] for k in WHEELS]),
+                   ca.vertcat(*[p[n] for n in STATICS_PARAMS]))
+    n0, B, _, _ = loads_given_tractions(dims, A, b)
+    return n0, B
+
+
+def _group(dims, wheel):
+    return GROUPS[dims].index(PAIR.get(wheel, wheel) if dims == "2d" else wheel)
+
+
+def _traction_torques(dims, loads, p, demand):
+    """Mode 2: the summed torque `demand` at one friction ratio on every wheel; a wheel the balance leaves
+    unloaded gets no torque, and every torque stays within +-ctrl.tau_max."""
+    n0, B = loads
+    weights = p["R_w"] * ca.DM(multiplicity(dims))
+    _, ratio, normal = equal_ratio_tractions(n0, B, weights, demand, TRACTION_NEWTON_STEPS)
+    lim = p["ctrl.tau_max"]
+    return [ca.fmin(ca.fmax(p["R_w"] * ratio * ca.fmax(normal[_group(dims, k)], 0), -lim), lim) for k in WHEELS]
+
+
+def _estimate(dims, loads, p, tau):
+    """The balance's normal forces for the commanded torques (2D: a pair's traction is the mean of its two
+    torques) and the largest friction ratio they ask of a loaded wheel."""
+    n0, B = loads
+    members = {g: [k for k in WHEELS if _group(dims, k) == g] for g in range(len(GROUPS[dims]))}
+    traction = ca.vertcat(*[sum(tau[k - 1] for k in m) / (len(m) * p["R_w"]) for m in members.values()])
+    normal = n0 + B @ traction
+    ratios = [ca.if_else(normal[g] > 0, ca.fabs(traction[g]) / ca.fmax(normal[g], 1e-9), 0) for g in members]
+    return [normal[_group(dims, k)] for k in WHEELS], ca.mmax(ca.vertcat(*ratios))
 
 
 def sample_function(dims: str) -> ca.Function:
@@ -151,12 +217,15 @@ def sample_function(dims: str) -> ca.Function:
     speed_tau, speed_int = _pi(cmd_v - v, xd[0], p["ctrl.speed_kp"], p["ctrl.speed_ki"], lim, T)
     ik = [_pi(rates[k] - i[f"wheel[{k + 1}].omega"], xd[1 + k], p["ctrl.rate_kp"], p["ctrl.rate_ki"], lim, T)
           for k in range(6)]
-    ik_mode = p["ctrl.mode"] >= 0.5
-    tau = [ca.if_else(ik_mode, ik[k][0], speed_tau) for k in range(6)]
-    xd_next = ca.vertcat(ca.if_else(ik_mode, xd[0], speed_int),
-                         *[ca.if_else(ik_mode, ik[k][1], xd[1 + k]) for k in range(6)],
-                         ca.if_else(ik_mode, trim_v, xd[7]), ca.if_else(ik_mode, trim_w, xd[8]), xd[9] + T)
-    y = tau + ([steer[0], steer[1]] if three else []) + [rates[k] for k in range(6)] + [v]
+    mode = p["ctrl.mode"]
+    loads = _loads(dims, i, p)
+    traction_tau = _traction_torques(dims, loads, p, 6 * speed_tau)
+    tau = [_by_mode(mode, speed_tau, ik[k][0], traction_tau[k]) for k in range(6)]
+    xd_next = ca.vertcat(_by_mode(mode, speed_int, xd[0], speed_int),
+                         *[_by_mode(mode, xd[1 + k], ik[k][1], xd[1 + k]) for k in range(6)],
+                         _by_mode(mode, xd[7], trim_v, xd[7]), _by_mode(mode, xd[8], trim_w, xd[8]), xd[9] + T)
+    fn_est, ratio = _estimate(dims, loads, p, tau)
+    y = tau + ([steer[0], steer[1]] if three else []) + [rates[k] for k in range(6)] + [v] + fn_est + [ratio]
     assert len(y) == len(outs)
     return ca.Function("cedra_sample", [inp, par, xd], [ca.vertcat(*y), xd_next], ["inp", "par", "xd"],
                        ["y", "xd_next"])

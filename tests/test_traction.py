@@ -1,0 +1,193 @@
+"""Traction control (ctrl.mode = 2, docs/model.md, Controller): the quasi-static balance against the plant's settled
+loads and against a whole-rover force and moment balance, the equal-ratio distribution against an LP's optimum,
+the controller's fixed cost, and a short closed loop over the bump."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+from scipy.optimize import linprog
+
+from cedra.models.controller import TRACTION_NEWTON_STEPS, sample_function
+from cedra.rover.mechanism import FULL_Q, IDX, describe
+from cedra.rover.parameters import DEFAULTS
+from cedra.rover.statics import GROUPS, STATICS_PARAMS, balance, multiplicity, traction_function
+from cedra.run.cosim import DriveLoop
+from cedra.run.driver import RoverFMU
+from cedra.run.scenario import fmu as scenario_fmu
+from cedra.rover.kinematics import contact_frame
+from cedra.mechanics.transforms import rot_x, rot_y, rot_z
+
+BUILD = Path(__file__).resolve().parents[1] / "build"
+PAR = [DEFAULTS[n] for n in STATICS_PARAMS]
+WEIGHT = (DEFAULTS["m_B"] + DEFAULTS["m_F"] + 6 * DEFAULTS["m_w"]) * DEFAULTS["g"]
+
+
+def _settled(plant):
+    """The plant's settled start (start.settle: static equilibrium) and its pose and wheel loads."""
+    f = RoverFMU(scenario_fmu(plant, BUILD), "plant")
+    try:
+        f.start({})
+        names = ["body.pitch", "body.roll", "bogie.theta[1]", "bogie.theta[2]", "fork.theta4", "steer.theta[1]",
+                 "steer.theta[2]"] + [f"wheel[{i}].psi_R" for i in range(1, 7)] + \
+            [f"wheel[{i}].Fn" for i in range(1, 7)]
+        names = [n for n in names if f.has(n)]
+        return {n: float(v) for n, v in zip(names, f.get(names))}
+    finally:
+        f.close()
+
+
+@pytest.mark.parametrize("plant,dims", [("bump2d", "2d"), ("flat3d", "3d")])
+def test_flat_ground_loads_are_the_plants_settled_loads(plant, dims):
+    """At rest on flat ground (no traction) the estimate is the plant's settled wheel[i].Fn within 1 %, and the
+    loads sum to the rover's weight."""
+    v = _settled(plant)
+    theta = [v["bogie.theta[1]"], v.get("bogie.theta[2]", v["bogie.theta[1]"]), v["fork.theta4"]]
+    steer = [v.get("steer.theta[1]", 0.0), v.get("steer.theta[2]", 0.0)]
+    psi = [v[f"wheel[{i}].psi_R"] for i in range(1, 7)]
+    _, _, normal, _, _ = traction_function(dims, TRACTION_NEWTON_STEPS)(v["body.pitch"], v.get("body.roll", 0.0),
+                                                                       theta, steer, psi, PAR, 0.0)
+    normal = np.array(normal).ravel()
+    true = np.array([v[f"wheel[{i}].Fn"] for i in GROUPS[dims]])
+    print(f"{plant}: estimate {np.round(normal, 3)} N, plant {np.round(true, 3)} N")
+    assert np.all(np.abs(normal / true - 1) < 0.01)
+    assert abs(np.dot(multiplicity(dims), normal) / WEIGHT - 1) < 1e-9
+
+
+def _world_forces(pose, u):
+    """Contact points and forces in the world of a 3D pose, from the kinematics' contact frames alone."""
+    q = ca.DM.zeros(len(FULL_Q))
+    for n, val in pose.items():
+        if n in IDX:
+            q[IDX[n]] = val
+    R = np.array(ca.evalf(rot_z(0) @ rot_y(pose["pitch"]) @ rot_x(pose["roll"])))
+    joints = ca.vertcat(*(q[IDX[n]] for n in ("theta1", "theta2", "theta4", "theta3", "theta6")))
+    N, T, L = u[0:6], u[6:12], u[12:18]
+    points, forces = [], []
+    for i in range(1, 7):
+        frame = np.array(ca.evalf(contact_frame(i, joints, pose["psi"][i - 1], DEFAULTS)))
+        rot, center = R @ frame[:3, :3], R @ frame[:3, 3]
+        points.append(center - DEFAULTS["R_w"] * rot[:, 2])
+        forces.append(N[i - 1] * rot[:, 2] + T[i - 1] * rot[:, 0] + L[i - 1] * rot[:, 1])
+    return q, points, forces
+
+
+def test_the_balance_holds_the_whole_rover_at_a_tilted_pose():
+    """Any forces that satisfy the balance at a tilted 3D pose (pitch, roll, bogies, fork, steering, contact angles)
+    hold the whole rover as one rigid system: the sum of the contact forces, the weights and the d'Alembert forces
+    -m a x and the sum of their moments vanish. The check uses only the kinematics' contact frames and the bodies'
+    positions, not the virtual work the balance is formed with."""
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        pose = dict(pitch=rng.uniform(-0.3, 0.3), roll=rng.uniform(-0.2, 0.2), theta1=rng.uniform(-0.3, 0.3),
+                    theta2=rng.uniform(-0.3, 0.3), theta4=DEFAULTS["fork_theta4_ref"] + rng.uniform(-0.2, 0.2),
+                    theta3=rng.uniform(-0.4, 0.4), theta6=rng.uniform(-0.4, 0.4), psi=rng.uniform(-0.6, 0.6, 6))
+        A, b = (np.array(m) for m in balance("3d", pose["pitch"], pose["roll"],
+                                              [pose["theta1"], pose["theta2"], pose["theta4"]],
+                                              [pose["theta3"], pose["theta6"]], pose["psi"], PAR))
+        u = np.linalg.lstsq(A, b.ravel(), rcond=None)[0] + \
+            np.linalg.svd(A)[2][-1] * 10.0                 # a solution plus a null-space direction
+        assert np.allclose(A @ u, b.ravel(), atol=1e-9)
+        q, points, forces = _world_forces(pose, u)
+        rover = describe(q, lambda e: ca.DM.zeros(e.shape), DEFAULTS, ca.DM.zeros(6), None)
+        gravity = np.array([-u[18], 0.0, -DEFAULTS["g"]])   # weight and the d'Alembert force per unit mass
+        masses = [(float(ca.evalf(bd.mass)), np.array(ca.evalf(bd.position)).ravel()) for bd in rover.bodies]
+        force = sum(forces) + sum(m * gravity for m, _ in masses)
+        moment = sum(np.cross(p, f) for p, f in zip(points, forces)) + \
+            sum(np.cross(c, m * gravity) for m, c in masses)
+        print(f"residual force {np.abs(force).max():.2e} N, moment {np.abs(moment).max():.2e} N.m")
+        assert np.abs(force).max() < 1e-9 * WEIGHT and np.abs(moment).max() < 1e-9 * WEIGHT
+
+
+def _lp_optimum(N0, B, weights, demand):
+    """min over T of max_i |T_i| / N_i(T) subject to weights' T = demand: bisection on the ratio s, each s an
+    LP feasibility problem (|T_i| <= s (N0 + B T)_i) solved by HiGHS; 2^-40 of the bracket."""
+    n = len(N0)
+
+    def feasible(s):
+        a_ub = np.vstack([np.eye(n) - s * B, -np.eye(n) - s * B])
+        r = linprog(np.zeros(n), A_ub=a_ub, b_ub=np.concatenate([s * N0, s * N0]), A_eq=weights[None],
+                    b_eq=[demand], bounds=[(None, None)] * n, method="highs")
+        return r.status == 0
+    lo, hi = 0.0, 4.0
+    for _ in range(40):
+        lo, hi = (lo, (lo + hi) / 2) if feasible((lo + hi) / 2) else ((lo + hi) / 2, hi)
+    return hi
+
+
+@pytest.mark.parametrize("dims", ["2d", "3d"])
+def test_the_fixed_iteration_distribution_is_the_lp_optimum(dims):
+    """Random poses and demands: the controller's equal-ratio tractions (TRACTION_NEWTON_STEPS Newton steps) meet
+    the demand and their largest ratio is the LP's optimum within 1e-6 (relative). Poses where the balance
+    leaves a wheel unloaded at that ratio (N_i < 0: the rover would tip onto the others) are not instances of the
+    problem and are skipped; at least 20 of 40 remain."""
+    rng = np.random.default_rng(3)
+    f = traction_function(dims, TRACTION_NEWTON_STEPS)
+    weights = DEFAULTS["R_w"] * np.array(multiplicity(dims), float)
+    gaps = []
+    for _ in range(40):
+        theta = [rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), DEFAULTS["fork_theta4_ref"] + rng.uniform(-0.2, 0.2)]
+        steer = rng.uniform(-0.4, 0.4, 2) if dims == "3d" else np.zeros(2)
+        demand = rng.uniform(0.5, 12.0)
+        out = f(rng.uniform(-0.3, 0.3), rng.uniform(-0.15, 0.15) if dims == "3d" else 0.0, theta, steer,
+                rng.uniform(-0.6, 0.6, 6), PAR, demand)
+        T, _, N, N0, B = (np.array(x) for x in out)
+        T, N, N0 = T.ravel(), N.ravel(), N0.ravel()
+        if N.min() <= 0:
+            continue
+        assert abs(weights @ T - demand) < 1e-9 * demand
+        gaps.append(np.max(np.abs(T) / N) / _lp_optimum(N0, B, weights, demand) - 1)
+    print(f"{len(gaps)} instances, largest relative gap to the LP {max(np.abs(gaps)):.2e}")
+    assert len(gaps) >= 20
+    assert max(np.abs(gaps)) < 1e-6
+
+
+def test_a_sample_has_a_fixed_cost():
+    """The generated C of cedra_sample is straight-line code: no loop, no jump, so every sample runs the same
+    instructions whatever the mode and the measurements (every mode is evaluated and the mode selects)."""
+    for dims in ("2d", "3d"):
+        f = sample_function(dims)
+        code = ca.CodeGenerator("sample.c", {"with_header": False})
+        code.add(f)
+        text = code.dump()
+        body = text[text.index("static int casadi_f0"):]
+        body = body[:body.index("\n}\n")]
+        assert not re.search(r"\b(for|while|goto|do)\b", body), dims
+        print(f"{dims}: {f.n_instructions()} instructions")
+
+
+@pytest.fixture(scope="module")
+def bump_climb():
+    """4 s over the bump's rising flank (the rover starts 0.7 m before its top) in modes 1 and 2."""
+    rec = [f"wheel[{i}].{q}" for i in (1, 2, 5, 6) for q in ("Fn", "Fx")] + ["body.x", "ctrl.ratio"]
+    runs = {}
+    for mode in (1, 2):
+        loop = DriveLoop(scenario_fmu("bump2d", BUILD), scenario_fmu("drive2d", BUILD),
+                         plant_values={"start.x": 0.3}, controller_values={"ctrl.mode": mode})
+        try:
+            runs[mode] = loop.run(4.0, 0.01, lambda t: {"cmd.v": 0.2}, record=rec)
+        finally:
+            loop.close()
+        assert runs[mode].ok, runs[mode].messages[-3:]
+    return runs
+
+
+def _ratios(r):
+    fn = np.array([r.column(f"wheel[{i}].Fn") for i in (1, 2, 5, 6)])
+    fx = np.array([r.column(f"wheel[{i}].Fx") for i in (1, 2, 5, 6)])
+    return np.abs(fx)[fn > 1.0] / fn[fn > 1.0]
+
+
+def test_traction_control_asks_less_friction_than_inverse_kinematics_on_the_bump(bump_climb):
+    """The plant's friction ratios |Fx| / Fn over the climb: mode 2's 99th percentile is below mode 1's, and
+    fewer of its samples are at the friction limit (mu = 0.8); both move on at about the commanded speed."""
+    q99 = {m: np.quantile(_ratios(r), 0.99) for m, r in bump_climb.items()}
+    sliding = {m: int(np.sum(_ratios(r) > 0.79)) for m, r in bump_climb.items()}
+    print(f"99th percentile of |Fx|/Fn: IK {q99[1]:.3f}, traction {q99[2]:.3f}; samples at the limit: {sliding}")
+    assert q99[2] < q99[1]
+    assert sliding[2] <= sliding[1]
+    for r in bump_climb.values():
+        assert r.column("body.x")[-1] > 0.3 + 0.6
