@@ -5,7 +5,7 @@ cedra_M) under callgrind, at a state on the scene's terrain:
 
 The state: the FMU's pose at --time s of the paper's closed-loop run (cedra.simulate's speed controller) with
 the wheels' spin angles 0 and speeds from the body's velocity. eval_model.c is compiled with the FMU's sources/
-(the generated C and heightmap.c) at -O2 (the FMU's flags); callgrind counts the instructions of --reps
+(the generated C, heightmap.c and rim.c) at -O2 (the FMU's flags); callgrind counts the instructions of --reps
 evaluations and of 0 (startup, the heightmap fit), and the difference / reps is printed per function, with the
 inclusive counts of the most expensive callees (callgrind_annotate)."""
 from __future__ import annotations
@@ -80,8 +80,11 @@ def main():
         state.write_text(f"{len(qn)} {len(inp)} {len(par)}\n" + "\n".join(
             " ".join(repr(float(x)) for x in vec) for vec in (q, u, a, inp, par)) + "\n")
         exe = d / "eval_model"
+        # the contact search of several contacts per wheel (rim.c) where the model calls it, as the FMU links it
+        extra = [str(src / "rim.c")] if (src / "rim.c").exists() else []
         subprocess.run(["gcc", "-std=c99", "-O2", "-I", str(src), "-Wno-unused-parameter", str(HERE / "eval_model.c"),
-                        str(src / "cedra_model.c"), str(src / "heightmap.c"), "-o", str(exe), "-lm"], check=True)
+                        str(src / "cedra_model.c"), str(src / "heightmap.c"), *extra, "-o", str(exe), "-lm"],
+                       check=True)
         grid = str(sc.options.heightmap) if sc.options.heightmap else "-"
         print(f"{args.scene}: state at t = {args.time} s: " + ", ".join(f"{k} {x:.4g}" for k, x in vals.items()))
         for fn in ("f", "rjac", "out", "M"):
