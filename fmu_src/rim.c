@@ -144,10 +144,10 @@ static void rim_frame(rim_ctx *k, const double n0[3]) {
 }
 
 /* 1 where the terrain's bounds prove that the rim has one maximum (the test at the top of this file), with n0
- * the unit normal at the center; 0 where they do not */
-static int proven_one(rim_ctx *k, double n0[3]) {
+ * the unit normal at the center (n0 NULL: not needed); 0 where they do not */
+static int proven_one(rim_ctx *k, double *n0) {
     const double margin = 1e-9, *a = k->a;
-    double bounds[2], hc, gc[2], Hc[4];
+    double bounds[2], hc, gc[2], Hc[4], n0_[3];
     k->arg[0] = k->tin;
     k->res[0] = bounds;
     if (cedra_terrain_bounds(k->arg, k->res, k->iw, k->w, 0)) return 0;
@@ -155,6 +155,11 @@ static int proven_one(rim_ctx *k, double n0[3]) {
     if (!(isfinite(G) && isfinite(U) && G >= 0)) return 0;
     double a_xy = sqrt(a[0] * a[0] + a[1] * a[1]), a_z = fabs(a[2]), L = a_xy - a_z * G;
     if (!(L > 0 && k->R * fmax(U, 0.0) < (1 - margin) * L)) return 0;                 /* 1 and 2 */
+    /* 3 without the terrain at the center: (1 - G s) / sqrt(1 + s^2) falls with s = |grad f(c)| <= G, and
+     * |n0.a| <= a_Z + G a_XY, so (1 - G^2) / sqrt(1 + G^2) > (a_Z + G a_XY)^2 implies 3 (one spline evaluation
+     * less per wheel and call on a heightmap, whose model does not need n0) */
+    if (!n0 && (1 - G * G) / sqrt(1 + G * G) > (a_z + G * a_xy) * (a_z + G * a_xy) + margin) return 1;
+    if (!n0) n0 = n0_;
     if (terrain_at(k, k->c[0], k->c[1], &hc, gc, Hc)) return 0;
     double nN = sqrt(gc[0] * gc[0] + gc[1] * gc[1] + 1);
     n0[0] = -gc[0] / nN, n0[1] = -gc[1] / nN, n0[2] = 1 / nN;
@@ -169,7 +174,11 @@ static int search_one(rim_ctx *k, double *r, int *one) {
     const double step = 3.14159265358979323846 / 12;
     double n0[3];
     *one = 0;
+#if CEDRA_HEIGHTMAP
+    if (!proven_one(k, NULL)) return 0;
+#else
     if (!proven_one(k, n0)) return 0;
+#endif
 #if CEDRA_HEIGHTMAP
     /* the heightmap's model takes a rim with one maximum from its own single-contact search (heightmap.c) and
      * reads nothing here but the presence flags: the angle is not needed */

@@ -1,7 +1,7 @@
 /* Cost of one evaluation of a scene's generated functions, for callgrind (instruction counts are immune to the
  * noise of a shared machine). Compiled with the scene's sources/ (cedra_model.c, heightmap.c) by
  * tools/profile/profile.py:
- *     eval_model <state file> <heightmap file or -> <function: f | rjac | out | M> <repetitions>
+ *     eval_model <state file> <heightmap file or -> <function: f | rjac | switch | out | M> <repetitions>
  * The state file holds nq, nin, npar, then q, u, a (nq each), inp, par. */
 #include <stdio.h>
 #include <stdlib.h>
@@ -19,7 +19,7 @@ static double *read_vec(FILE *f, int n) {
 
 int main(int argc, char **argv) {
     if (argc != 5) {
-        fprintf(stderr, "usage: %s state heightmap f|rjac|out|M reps\n", argv[0]);
+        fprintf(stderr, "usage: %s state heightmap f|rjac|switch|out|M reps\n", argv[0]);
         return 2;
     }
     FILE *f = fopen(argv[1], "r");
@@ -46,13 +46,23 @@ int main(int argc, char **argv) {
     double z = 0.0;
     int rc = 0;
     for (int k = 0; k < 4; k++) res[k] = out[k];
+    static double hold[64];
+    const double x0 = q[0];
     for (int r = 0; r < reps; r++) {
+        /* a new pose every repetition (x moves by 1e-9 m): the FMU's memo of contact searches, which a repeated
+         * pose would hit, costs what it costs in a run, where every stage of a step is a new pose */
+        q[0] = x0 + 1e-9 * r;
         if (strcmp(argv[3], "f") == 0) {
             arg[0] = q, arg[1] = u, arg[2] = inp, arg[3] = par;
             rc |= cedra_f(arg, res, iw, w, 0);
         } else if (strcmp(argv[3], "rjac") == 0) {
             arg[0] = q, arg[1] = u, arg[2] = a, arg[3] = inp, arg[4] = par;
             rc |= cedra_rjac(arg, res, iw, w, 0);
+#ifdef HAS_SWITCH       /* a scene with force-law switches (profile.py defines it where cedra_switch exists) */
+        } else if (strcmp(argv[3], "switch") == 0) {
+            arg[0] = q, arg[1] = u, arg[2] = inp, arg[3] = par, arg[4] = hold;
+            rc |= cedra_switch(arg, res, iw, w, 0);
+#endif
         } else if (strcmp(argv[3], "out") == 0) {
             arg[0] = q, arg[1] = u, arg[2] = &z, arg[3] = inp, arg[4] = par;
             rc |= cedra_out(arg, res, iw, w, 0);

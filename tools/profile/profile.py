@@ -1,10 +1,11 @@
-"""Instruction counts of one evaluation of a scene's generated functions (cedra_f, cedra_rjac, cedra_out,
-cedra_M) under callgrind, at a state on the scene's terrain:
+"""Instruction counts of one evaluation of a scene's generated functions (cedra_f, cedra_rjac, cedra_switch where
+the scene has force-law switches, cedra_out, cedra_M) under callgrind, at a state on the scene's terrain:
 
     .venv/bin/python tools/profile/profile.py hills3d [--build build] [--reps 20] [--time 6.0]
 
 The state: the FMU's pose at --time s of the paper's closed-loop run (cedra.simulate's speed controller) with
-the wheels' spin angles 0 and speeds from the body's velocity. eval_model.c is compiled with the FMU's sources/
+the wheels' spin angles 0 and speeds from the body's velocity, moved by 1e-9 m in x at each repetition (a new pose
+each time, as in a run, so the FMU's memo of contact searches is not hit). eval_model.c is compiled with the FMU's sources/
 (the generated C, heightmap.c and rim.c) at -O2 (the FMU's flags); callgrind counts the instructions of --reps
 evaluations and of 0 (startup, the heightmap fit), and the difference / reps is printed per function, with the
 inclusive counts of the most expensive callees (callgrind_annotate)."""
@@ -82,12 +83,14 @@ def main():
         exe = d / "eval_model"
         # the contact search of several contacts per wheel (rim.c) where the model calls it, as the FMU links it
         extra = [str(src / "rim.c")] if (src / "rim.c").exists() else []
+        has_switch = "cedra_switch" in (src / "cedra_model.h").read_text()
+        extra += ["-DHAS_SWITCH"] if has_switch else []
         subprocess.run(["gcc", "-std=c99", "-O2", "-I", str(src), "-Wno-unused-parameter", str(HERE / "eval_model.c"),
                         str(src / "cedra_model.c"), str(src / "heightmap.c"), *extra, "-o", str(exe), "-lm"],
                        check=True)
         grid = str(sc.options.heightmap) if sc.options.heightmap else "-"
         print(f"{args.scene}: state at t = {args.time} s: " + ", ".join(f"{k} {x:.4g}" for k, x in vals.items()))
-        for fn in ("f", "rjac", "out", "M"):
+        for fn in ("f", "rjac") + (("switch",) if has_switch else ()) + ("out", "M"):
             counts = {}
             for reps in (0, args.reps):
                 out = d / f"cg.{fn}.{reps}"
