@@ -1,11 +1,13 @@
-"""The paper's obstacle climbed twice: equal torques (the paper's run) and the inverse-kinematics controller.
+"""The paper's obstacle climbed three times: equal torques (the paper's run), the inverse-kinematics controller and
+traction control.
 
     python examples/step_climb.py           (or: python -m cedra simulate step_climb)
 
-Both runs use the 2D plant over the paper's bump and the drive controller FMU (ctrl.mode 0: the paper's run's
-speed loop with equal torques; ctrl.mode 1: Eq. 13 wheel rates with a PI loop per wheel). Writes
+Every run uses the 2D plant over the paper's bump and the drive controller FMU (ctrl.mode 0: the paper's run's
+speed loop with equal torques; ctrl.mode 1: Eq. 13 wheel rates with a PI loop per wheel; ctrl.mode 2: the speed
+loop's summed torque distributed for the least largest friction ratio, docs/model.md, Traction control). Writes
 out/step_climb/ (one CSV per run, compare.png: wheel slip, friction/normal ratios, torques) and prints slip,
-friction ratio and peak torque for each: the paper's motivation for traction control.
+friction ratio and peak torque for each.
 Sweep it over bump height, friction and speed: examples/sweeps/step_climb.toml (`python -m cedra sweep step_climb`).
 """
 from __future__ import annotations
@@ -17,7 +19,7 @@ import numpy as np
 SPEED = 0.2                 # m/s
 STOP_TIME = 15.0
 STEP = 0.01
-MODES = {"equal torques": 0, "inverse kinematics": 1}
+MODES = {"equal torques": 0, "inverse kinematics": 1, "traction control": 2}
 FMUS = ("bump2d", "drive2d")       # the FMUs run() opens (a sweep builds them first)
 # what a sweep may vary: name -> (default, min, max, meaning); the bump is the plant's, so is mu
 PARAMETERS = {"speed_cmd": (SPEED, 0.05, 0.4, "m/s, commanded speed"),
@@ -76,7 +78,7 @@ def _plot(out, runs):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axs = plt.subplots(3, 2, figsize=(11, 8), sharex=True, sharey="row")
+    fig, axs = plt.subplots(3, len(runs), figsize=(5.5 * len(runs), 8), sharex=True, sharey="row")
     for col, (label, r) in enumerate(runs.items()):
         t = r.column("time")
         for i in WHEELS:

@@ -20,8 +20,9 @@ SHORT = {   # scenario -> (stop time, files it must write; the 3D ones a view.ht
     "slope_traverse": (3.0, ["controller.csv", "equal_torques.csv", "drift.png", "view.html",
                              "equal_torques_view.html"]),
     "hills_waypoints": (3.0, ["hills_waypoints.csv", "path.png", "view.html"]),
-    "step_climb": (3.0, ["equal_torques.csv", "inverse_kinematics.csv", "compare.png", f"equal_torques_{VIDEO}",
-                         f"inverse_kinematics_{VIDEO}", "equal_torques_view.html", "inverse_kinematics_view.html"]),
+    "step_climb": (3.0, ["equal_torques.csv", "inverse_kinematics.csv", "traction_control.csv", "compare.png",
+                         f"equal_torques_{VIDEO}", f"inverse_kinematics_{VIDEO}", f"traction_control_{VIDEO}",
+                         "equal_torques_view.html", "inverse_kinematics_view.html", "traction_control_view.html"]),
     "drop": (1.0, ["drop.csv", "drop.png", "view.html"]),
     "rubble": (2.0, ["rubble.csv", "path.png", "view.html"]),
 }

@@ -191,3 +191,20 @@ def test_traction_control_asks_less_friction_than_inverse_kinematics_on_the_bump
     assert sliding[2] <= sliding[1]
     for r in bump_climb.values():
         assert r.column("body.x")[-1] > 0.3 + 0.6
+
+
+def test_a_stalled_climb_does_not_spin_a_wheel_up():
+    """3 R_w at mu 0.4 (plain torques: the bump2d plant has no drives) stalls the rover on the bump; the balance
+    still gives a lifted wheel a load, and without the spin guard its torque spun it to 29,000 rad/s. With it no
+    wheel turns faster than 60 rad/s over 15 s (measured: 30 rad/s; the inverse kinematics' rate loops: 43)."""
+    rec = [f"wheel[{i}].omega" for i in (1, 2, 5, 6)] + ["body.x"]
+    loop = DriveLoop(scenario_fmu("bump2d", BUILD), scenario_fmu("drive2d", BUILD),
+                     plant_values={"terrain_h": 0.195, "mu": 0.4}, controller_values={"ctrl.mode": 2})
+    try:
+        r = loop.run(15.0, 0.01, lambda t: {"cmd.v": 0.2}, record=rec)
+    finally:
+        loop.close()
+    assert r.ok, r.messages[-3:]
+    spin = max(float(np.max(np.abs(r.column(n)))) for n in rec[:-1])
+    assert spin < 60.0, spin
+    assert r.column("body.x")[-1] < 1.0                 # stalled on the bump (at x = 1 m), as the other modes are

@@ -19,7 +19,8 @@ Every `ctrl.period` (default 0.01 s) it reads the commanded forward speed `cmd.v
     ctrl.mode = 2  traction control: mode 0's speed PI gives the summed torque (6 times its per-wheel torque),
                    distributed over the wheels so that the largest friction ratio |T_i| / N_i is as small as
                    possible under the quasi-static balance at the measured pose (rover.statics): every wheel
-                   gets the same ratio, found by a fixed number of Newton steps (TRACTION_NEWTON_STEPS).
+                   gets the same ratio, found by a fixed number of Newton steps (TRACTION_NEWTON_STEPS); a wheel
+                   spinning faster than its Eq. 13 rate by ctrl.spin_margin gets no torque (_spin_guard).
 In every mode (3D) the steered wheels get the geometric steering angles (Eqs. 14-22) for (cmd.v, cmd.yaw_rate),
 and the outputs ctrl.Fn_est[i] give the balance's normal forces for the commanded torques (no force sensor: the
 pose, the contact angles and the torques only). Every mode is evaluated at every sample and the mode selects
@@ -76,6 +77,8 @@ def params() -> list[Quantity]:
                  0.0),
         Quantity("ctrl.trim_ki", 2.0, "1/s", "inverse-kinematics mode: integral gain of the speed and yaw-rate "
                  "trims (0: Eq. 13 open loop)", 0.0),
+        Quantity("ctrl.spin_margin", 5.0, "rad/s", "traction mode: a wheel spinning faster than its Eq. 13 rate by "
+                 "more than this gets no torque (its torque fades out linearly over this margin)", 1e-3),
     ] + _geometry_params()
 
 
@@ -167,6 +170,17 @@ def _traction_torques(dims, loads, p, demand):
     return [ca.fmin(ca.fmax(p["R_w"] * ratio * ca.fmax(normal[_group(dims, k)], 0), -lim), lim) for k in WHEELS]
 
 
+def _spin_guard(tau, omega, omega_ref, margin):
+    """tau, faded out where it would spin the wheel up beyond its Eq. 13 rate: full while the wheel turns no faster
+    than that rate, none from margin faster on, linear between; a torque against the spin (braking) is never
+    touched. The balance cannot see a wheel that has left the ground (it gives it a load from the pose), and a
+    torque on a wheel in the air only spins it up: without this a stalled climb (3 R_w at mu 0.4, no drives) spun
+    a wheel to 29,000 rad/s."""
+    excess = ca.fabs(omega) - ca.fabs(omega_ref)
+    fade = ca.fmin(1, ca.fmax(0, 1 - excess / margin))
+    return ca.if_else(tau * omega > 0, fade * tau, tau)
+
+
 def _estimate(dims, loads, p, tau):
     """The balance's normal forces for the commanded torques (2D: a pair's traction is the mean of its two
     torques) and the largest friction ratio they ask of a loaded wheel."""
@@ -219,7 +233,8 @@ def sample_function(dims: str) -> ca.Function:
           for k in range(6)]
     mode = p["ctrl.mode"]
     loads = _loads(dims, i, p)
-    traction_tau = _traction_torques(dims, loads, p, 6 * speed_tau)
+    traction_tau = [_spin_guard(t, i[f"wheel[{k + 1}].omega"], rates[k], p["ctrl.spin_margin"])
+                    for k, t in enumerate(_traction_torques(dims, loads, p, 6 * speed_tau))]
     tau = [_by_mode(mode, speed_tau, ik[k][0], traction_tau[k]) for k in range(6)]
     xd_next = ca.vertcat(_by_mode(mode, speed_int, xd[0], speed_int),
                          *[_by_mode(mode, xd[1 + k], ik[k][1], xd[1 + k]) for k in range(6)],
