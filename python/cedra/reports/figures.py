@@ -647,7 +647,7 @@ FIGURES = {    # name: (function, the page that quotes it, expected time on two 
     "fmpy": (fig_fmpy, "fmu.md", "5 s"),
     "masters": (fig_masters, "fmu.md", "5 s"),
     "location": (fig_location, "solvers.md", "80 s"),
-    "flags": (fig_flags, "solvers.md", "3 min"),
+    "flags": (fig_flags, "solvers.md", "9 min"),
     "switch": (fig_switch, "solvers.md", "30 s"),
     "ros34pw2": (fig_ros34pw2, "solvers.md", "5 s"),
     "rigid": (fig_rigid, "rigid-contact.md", "10 s"),

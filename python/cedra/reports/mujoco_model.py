@@ -72,7 +72,7 @@ BUMP_CELL = 0.01            # m, the bump's height-field cells
 BUMP_X = (-1.0, 4.0)        # m, extent of the bump's height field
 BUMP_Y = (-0.4, 0.4)
 TERRAINS = ("plane", "hfield", "boxes")
-LANDING = 2.0               # m: the top box reaches this far past the last edge (and the first box as far sideways)
+LANDING = 2.0               # m: the top box reaches this far past the last edge; the boxes reach as far to the sides
 
 
 def mujoco():
