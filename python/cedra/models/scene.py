@@ -229,17 +229,21 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     return scene
 
 
-def load(path) -> Scene:
+def read_toml(path, error=ValueError) -> dict:
+    """The TOML file's table; an unreadable file or bad TOML raises error naming the file (scene, problem files)."""
     path = Path(path)
     try:
         text = path.read_text()
     except OSError as e:
-        raise SceneError(f"{path}: cannot read: {e.strerror}") from None
+        raise error(f"{path}: cannot read: {e.strerror}") from None
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
-        raise SceneError(f"{path}: not valid TOML: {e}") from None
-    return parse(data, str(path))
+        raise error(f"{path}: not valid TOML: {e}") from None
+
+
+def load(path) -> Scene:
+    return parse(read_toml(path, SceneError), str(path))
 
 
 def shipped() -> list[str]:

@@ -64,14 +64,13 @@ import hashlib
 import math
 import subprocess
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from cedra.models.scene import SceneError, load_shipped, shipped
+from cedra.models.scene import SceneError, load_shipped, read_toml, shipped
 from cedra.rover.parameters import DEFAULTS
 
 OBJECTIVES = ("energy", "peak_friction", "time")
@@ -210,16 +209,7 @@ def _inputs(path, table, scene) -> dict:
 
 
 def load(path) -> Problem:
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise ProblemError(f"{path}: cannot read: {e.strerror}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise ProblemError(f"{path}: not valid TOML: {e}") from None
-    return parse(data, str(path))
+    return parse(read_toml(path, ProblemError), str(path))
 
 
 # ---------------- the equations ----------------
