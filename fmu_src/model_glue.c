@@ -60,6 +60,18 @@
 #define WS_SZ_IW SW_SZ_IW
 #define WS_SZ_W SW_SZ_W
 #endif
+/* rigid contact (cedra_contact) */
+#if CEDRA_RIGID
+#define ALL_SZ_ARG MAX2(WS_SZ_ARG, cedra_contact_SZ_ARG)
+#define ALL_SZ_RES MAX2(WS_SZ_RES, cedra_contact_SZ_RES)
+#define ALL_SZ_IW MAX2(WS_SZ_IW, cedra_contact_SZ_IW)
+#define ALL_SZ_W MAX2(WS_SZ_W, cedra_contact_SZ_W)
+#else
+#define ALL_SZ_ARG WS_SZ_ARG
+#define ALL_SZ_RES WS_SZ_RES
+#define ALL_SZ_IW WS_SZ_IW
+#define ALL_SZ_W WS_SZ_W
+#endif
 /* a switch is located when the step that crosses it is at most this long (s; more where time cannot resolve it) */
 #define LOC_TOL 1e-10
 #define MAX_LOCATE 4        /* locations of one switch per call (fmi2DoStep) before it is left to the error control */
@@ -67,9 +79,12 @@
 
 #if CEDRA_RIGID
 #define NC CEDRA_NC
+#define NCW CEDRA_NCW       /* contacts of each wheel: contacts k NCW .. k NCW + NCW - 1 are wheel k + 1's */
 #else
 #define NC 1
+#define NCW 1
 #endif
+#define N_WHEELS 6
 
 /* x = [q, u, z] with q' = u: RODAS4's stage systems reduce to NQ x NQ (solver.c); -DCEDRA_SCHUR_N2=0 builds the
  * dense NX x NX solve (the benchmark's comparison) */
@@ -87,10 +102,10 @@
 
 struct model_ws {
     const double *inp, *par;
-    const casadi_real *arg[DIM(WS_SZ_ARG)];
-    casadi_real *res[DIM(WS_SZ_RES)];
-    casadi_int iw[DIM(WS_SZ_IW)];
-    casadi_real w[DIM(WS_SZ_W)];
+    const casadi_real *arg[DIM(ALL_SZ_ARG)];
+    casadi_real *res[DIM(ALL_SZ_RES)];
+    casadi_int iw[DIM(ALL_SZ_IW)];
+    casadi_real w[DIM(ALL_SZ_W)];
     /* switch location: s and the held choices at the step's start (cached on (t, x)), s at its end */
     double sw0[DIM(NSW)], sw1[DIM(NSW)], hold[DIM(NH)], hold_tmp[DIM(NH)], sw_t, sw_x[NX];
     int sw_valid;
@@ -135,8 +150,8 @@ struct model_ws {
     int riwork[RIGID_IWORK(NQ, NC)];
     double xh[NX], fh[NX];
     int i_mu, i_alpha, i_vstick;        /* where mu (input), rigid_alpha and v_stick (parameters) live */
-    int y_fn[NC], y_fx[NC], y_fy[NC], y_mode[NC];   /* output slots the contact solution fills */
-    int y_mean[3 * NC];                 /* wheel[k].Fx_mean, Fy_mean, Fn_mean: the lambda layout */
+    int y_mode[N_WHEELS];               /* output slots the contact solution fills: wheel[k].mode, */
+    int y_mean[3 * N_WHEELS];           /* wheel[k].Fx_mean, Fy_mean, Fn_mean (lambda's component order) */
     double impulse[3 * NC];
 };
 
@@ -173,14 +188,8 @@ void model_bind(model_ws *ws, const double *inp, const double *par) {
     ws->i_mu = find_var("mu", CEDRA_K_INP);
     ws->i_alpha = find_var("rigid_alpha", CEDRA_K_PAR);
     ws->i_vstick = find_var("v_stick", CEDRA_K_PAR);
-    for (int k = 0; k < NC; k++) {
+    for (int k = 0; k < N_WHEELS; k++) {
         char name[64];
-        snprintf(name, sizeof name, "wheel[%d].Fn", k + 1);
-        ws->y_fn[k] = find_var(name, CEDRA_K_OUT);
-        snprintf(name, sizeof name, "wheel[%d].Fx", k + 1);
-        ws->y_fx[k] = find_var(name, CEDRA_K_OUT);
-        snprintf(name, sizeof name, "wheel[%d].Fy", k + 1);
-        ws->y_fy[k] = find_var(name, CEDRA_K_OUT);
         snprintf(name, sizeof name, "wheel[%d].mode", k + 1);
         ws->y_mode[k] = find_var(name, CEDRA_K_OUT);
         for (int c = 0; c < 3; c++) {
@@ -744,6 +753,28 @@ int model_jac(void *ctx, double t, const double *x, const double *xdot, double *
     return 0;
 }
 
+#if CEDRA_RIGID
+/* a wheel's mode from its contacts': stick if one sticks, else slip if one slips, else airborne */
+static int wheel_mode(const int *mode) {
+    int m = RIGID_AIRBORNE;
+    for (int j = 0; j < NCW; j++)
+        if (mode[j] == RIGID_STICK || (mode[j] == RIGID_SLIP && m == RIGID_AIRBORNE)) m = mode[j];
+    return m;
+}
+
+/* wheel[k].F*_mean: the impulses of the wheel's contacts (3 per contact, lambda's layout) added by component,
+ * divided by h (with several contacts the sums of their impulses, each along its own contact frame) */
+static void wheel_means(const model_ws *ws, const double *impulse, double h, double *y) {
+    for (int k = 0; k < N_WHEELS; k++)
+        for (int c = 0; c < 3; c++) {
+            if (ws->y_mean[3 * k + c] < 0) continue;
+            double sum = 0;
+            for (int j = 0; j < NCW; j++) sum += impulse[3 * (k * NCW + j) + c];
+            y[ws->y_mean[3 * k + c]] = sum / h;
+        }
+}
+#endif
+
 int model_outputs(model_ws *ws, const double *x, double *y) {
     activate(ws);
     if (!all_finite(x, NX)) {
@@ -751,6 +782,12 @@ int model_outputs(model_ws *ws, const double *x, double *y) {
         return 1;
     }
     if (!model_check(ws, x, x + NQ)) return 1;
+#if CEDRA_RIGID
+    /* contact forces and modes are the decision tree's solution at this state; cedra_out forms the outputs of
+     * the forces (the wheels' totals, the contacts') */
+    if (rigid_solve(ws, x, x + NQ, 0.0, ws->xh, 1)) return 1;
+    ws->arg[5] = ws->lambda;
+#endif
     ws->arg[0] = x;
     ws->arg[1] = x + NQ;
     ws->arg[2] = x + 2 * NQ;
@@ -762,16 +799,9 @@ int model_outputs(model_ws *ws, const double *x, double *y) {
         return 1;
     }
 #if CEDRA_RIGID
-    /* contact forces and modes are the decision tree's solution at this state */
-    if (rigid_solve(ws, x, x + NQ, 0.0, ws->xh, 1)) return 1;
-    for (int k = 0; k < NC; k++) {
-        if (ws->y_fx[k] >= 0) y[ws->y_fx[k]] = ws->lambda[3 * k];
-        if (ws->y_fy[k] >= 0) y[ws->y_fy[k]] = ws->lambda[3 * k + 1];
-        if (ws->y_fn[k] >= 0) y[ws->y_fn[k]] = ws->lambda[3 * k + 2];
-        if (ws->y_mode[k] >= 0) y[ws->y_mode[k]] = ws->mode[k];
-    }
-    for (int i = 0; i < 3 * NC; i++)    /* no interval yet (model_interval_outputs): the force here */
-        if (ws->y_mean[i] >= 0) y[ws->y_mean[i]] = ws->lambda[i];
+    for (int k = 0; k < N_WHEELS; k++)
+        if (ws->y_mode[k] >= 0) y[ws->y_mode[k]] = wheel_mode(ws->mode + k * NCW);
+    wheel_means(ws, ws->lambda, 1.0, y);     /* no interval yet (model_interval_outputs): the force here */
 #endif
     for (int i = 0; i < CEDRA_NY; i++) {
         if (!isfinite(y[i])) {
@@ -858,8 +888,7 @@ void model_begin_interval(model_ws *ws, double *x) {
 
 void model_interval_outputs(model_ws *ws, const double *x, double h, double *y) {
 #if CEDRA_RIGID
-    for (int i = 0; i < 3 * NC; i++)
-        if (ws->y_mean[i] >= 0) y[ws->y_mean[i]] = x[IMP + i] / h;
+    wheel_means(ws, x + IMP, h, y);
 #else
     (void)ws;
     (void)x;

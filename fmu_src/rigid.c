@@ -98,8 +98,9 @@ static void find_aliases(contact_lcp *s, const double *gap) {
     for (int k = 0; k < nc; k++) {
         s->alias[k] = -1;
         s->ncopy[k] = 1;
+        if (!s->touching[k]) continue;        /* only contacts that may carry force enter a solve */
         for (int j = 0; j < k && s->alias[k] < 0; j++) {
-            if (s->alias[j] >= 0 || fabs(gap[j] - gap[k]) > 1e-12) continue;
+            if (!s->touching[j] || s->alias[j] >= 0 || fabs(gap[j] - gap[k]) > 1e-12) continue;
             int same = 1;
             for (int c = 0; c < 3 && same; c++) {
                 const int a = 3 * j + c, b = 3 * k + c;
@@ -118,10 +119,11 @@ static void find_aliases(contact_lcp *s, const double *gap) {
     }
 }
 
-/* One solve with the modes held: x, lambda (per contact: Fx, Fy, Fn in the contact frame; 0 when airborne) and,
- * if y != NULL, the constraint values y of every row. Aliased contacts take their primary's mode and share its
- * force. Returns 0, or 1 on a singular contact system. */
-static int lcp_solve(const contact_lcp *s, int *mode, double *dir, double *x, double *lambda, double *y) {
+/* The contact system of the modes held: the rows of the contacts in contact (C: their constraint rows, D: their
+ * force columns, a slipping contact's carrying its friction mu Fn dir, Eq. 68), Dt = M^-1 D', the Delassus matrix
+ * A = C Dt (m x m, not yet regularized) and r = target - bias - C x0, so that the rows' values are
+ * y - target = A lam - r. Aliased contacts take their primary's mode. Returns m, the number of rows. */
+static int build_system(const contact_lcp *s, int *mode, double *dir) {
     const int nq = s->nq, nc = s->nc, ldw = 3 * nc, mmax = 3 * nc;
     int m = 0;
     for (int k = 0; k < nc; k++) {
@@ -137,8 +139,7 @@ static int lcp_solve(const contact_lcp *s, int *mode, double *dir, double *x, do
             for (int j = 0; j < nq; j++) {
                 double cw = s->W[w + (size_t)j * ldw];
                 s->C[m + (size_t)j * mmax] = cw;
-                /* a slipping contact's force column carries its friction mu Fn dir (Eq. 68); the column of a
-                 * contact standing for ncopy wheels carries all their forces */
+                /* the column of a contact standing for ncopy wheels carries all their forces */
                 s->D[m + (size_t)j * mmax] =
                     mode[k] == RIGID_SLIP ? cw + s->mu * (dir[2 * k] * s->W[3 * k + (size_t)j * ldw] +
                                                           dir[2 * k + 1] * s->W[3 * k + 1 + (size_t)j * ldw])
@@ -149,28 +150,36 @@ static int lcp_solve(const contact_lcp *s, int *mode, double *dir, double *x, do
             m++;
         }
     }
+    for (int i = 0; i < m; i++) {
+        double *col = s->Dt + (size_t)i * nq;
+        for (int j = 0; j < nq; j++) col[j] = s->D[i + (size_t)j * mmax];
+        linalg_lu_solve(nq, s->Mlu, s->piv, col);
+    }
+    for (int i = 0; i < m; i++) {
+        for (int j = 0; j < m; j++) {
+            double acc = 0;
+            for (int l = 0; l < nq; l++) acc += s->C[i + (size_t)l * mmax] * s->Dt[l + (size_t)j * nq];
+            s->A[i + (size_t)j * m] = acc;
+        }
+        int w = 3 * s->row_contact[i] + s->row_comp[i];
+        double cx0 = 0;
+        for (int l = 0; l < nq; l++) cx0 += s->C[i + (size_t)l * mmax] * s->x0[l];
+        s->r[i] = s->target[w] - s->bias[w] - cx0;
+    }
+    return m;
+}
+
+/* One solve with the modes held: x, lambda (per contact: Fx, Fy, Fn in the contact frame; 0 when airborne) and,
+ * if y != NULL, the constraint values y of every row. Aliased contacts take their primary's mode and share its
+ * force. Returns 0, or 1 on a singular contact system. */
+static int lcp_solve(const contact_lcp *s, int *mode, double *dir, double *x, double *lambda, double *y) {
+    const int nq = s->nq, nc = s->nc, ldw = 3 * nc;
+    const int m = build_system(s, mode, dir);
     memcpy(x, s->x0, sizeof(double) * nq);
     memset(lambda, 0, sizeof(double) * 3 * (size_t)nc);
     if (m > 0) {
-        /* Dt = M^-1 D', A = C Dt, r = target - bias - C x0 */
-        for (int i = 0; i < m; i++) {
-            double *col = s->Dt + (size_t)i * nq;
-            for (int j = 0; j < nq; j++) col[j] = s->D[i + (size_t)j * mmax];
-            linalg_lu_solve(nq, s->Mlu, s->piv, col);
-        }
         double diag = 0;
-        for (int i = 0; i < m; i++) {
-            for (int j = 0; j < m; j++) {
-                double acc = 0;
-                for (int l = 0; l < nq; l++) acc += s->C[i + (size_t)l * mmax] * s->Dt[l + (size_t)j * nq];
-                s->A[i + (size_t)j * m] = acc;
-            }
-            diag = fmax(diag, fabs(s->A[i + (size_t)i * m]));
-            int w = 3 * s->row_contact[i] + s->row_comp[i];
-            double cx0 = 0;
-            for (int l = 0; l < nq; l++) cx0 += s->C[i + (size_t)l * mmax] * s->x0[l];
-            s->r[i] = s->target[w] - s->bias[w] - cx0;
-        }
+        for (int i = 0; i < m; i++) diag = fmax(diag, fabs(s->A[i + (size_t)i * m]));
         for (int i = 0; i < m; i++) s->A[i + (size_t)i * m] += CFM * diag;
         if (linalg_lu_factor(m, s->A, s->piv2)) return 1;
         memcpy(s->lam, s->r, sizeof(double) * m);
@@ -192,6 +201,62 @@ static int lcp_solve(const contact_lcp *s, int *mode, double *dir, double *x, do
     if (y)
         for (int w = 0; w < 3 * nc; w++) y[w] = row_dot(s->W, ldw, w, x, nq) + s->bias[w];
     return 0;
+}
+
+/* A guess of the modes where switching one contact at a time cycles: projected Gauss-Seidel on the touching
+ * contacts' all-stick system (per contact: the normal force clipped at 0, then the tangential force projected
+ * onto the friction disk mu Fn), PGS_SWEEPS sweeps, then each contact's mode read from its force: no normal
+ * force airborne, inside the disk stick, on its rim slip along the force. Bounded cost; the caller checks the
+ * guess (it is an approximation). resid: scratch of 3 nc. */
+#define PGS_SWEEPS 100
+static void pgs_modes(const contact_lcp *s, int *mode, double *dir, double *resid) {
+    const int nc = s->nc;
+    for (int k = 0; k < nc; k++) {
+        mode[k] = s->touching[k] ? RIGID_STICK : RIGID_AIRBORNE;
+        dir[2 * k] = 1;
+        dir[2 * k + 1] = 0;
+    }
+    const int m = build_system(s, mode, dir);     /* rows: 3 per touching primary, in contact order x, y, n */
+    double *lam = s->lam;
+    for (int i = 0; i < m; i++) {
+        lam[i] = 0;
+        resid[i] = -s->r[i];                       /* A lam - r */
+    }
+    double scale = 0;
+    for (int i = 0; i < m; i++) scale = fmax(scale, fabs(s->A[i + (size_t)i * m]));
+    const double tiny = 1e-12 * scale;
+    for (int sweep = 0; sweep < PGS_SWEEPS; sweep++)
+        for (int b = 0; b + 2 < m; b += 3) {       /* block b, b+1, b+2 = one contact's x, y, n */
+            double old[3] = {lam[b], lam[b + 1], lam[b + 2]};
+            const double ann = s->A[b + 2 + (size_t)(b + 2) * m];
+            if (ann > tiny) lam[b + 2] = fmax(0, lam[b + 2] - resid[b + 2] / ann);
+            for (int c = 0; c < 2; c++) {
+                const double a = s->A[b + c + (size_t)(b + c) * m];
+                if (a > tiny) lam[b + c] -= resid[b + c] / a;
+                else lam[b + c] = 0;                /* a row with no motion (2D: lateral) carries nothing */
+            }
+            const double ft = hypot(lam[b], lam[b + 1]), cap = s->mu * lam[b + 2];
+            if (ft > cap) {
+                lam[b] *= cap / ft;
+                lam[b + 1] *= cap / ft;
+            }
+            for (int c = 0; c < 3; c++) {
+                const double d = lam[b + c] - old[c];
+                if (d != 0)
+                    for (int i = 0; i < m; i++) resid[i] += s->A[i + (size_t)(b + c) * m] * d;
+            }
+        }
+    for (int b = 0; b + 2 < m; b += 3) {
+        const int k = s->row_contact[b];
+        const double fn = lam[b + 2], fx = lam[b], fy = lam[b + 1], ft = hypot(fx, fy);
+        if (!(fn > 0)) mode[k] = RIGID_AIRBORNE;
+        else if (ft < s->mu * fn * (1 - 1e-6)) mode[k] = RIGID_STICK;
+        else {
+            mode[k] = RIGID_SLIP;
+            dir[2 * k] = fx / ft;
+            dir[2 * k + 1] = fy / ft;
+        }
+    }
 }
 
 enum violation { CONSISTENT = 0, PULLS, SINKS, OUTSIDE_CONE, SLIDES_WITH_FRICTION };
@@ -263,6 +328,13 @@ static int lcp_enumerate(const contact_lcp *s, int *mode, double *dir, double *x
     return 1;
 }
 
+/* how many distinct contacts may carry force (touching, not a copy of another) */
+static int touching_count(const contact_lcp *s) {
+    int n = 0;
+    for (int k = 0; k < s->nc; k++) n += s->touching[k] && s->alias[k] < 0;
+    return n;
+}
+
 /* The decision: from the modes given, solve and switch one contact at a time until the solution is
  * consistent, in the paper's order (contact first, Eqs. 63-65, then the friction cone, Eqs. 66-68):
  * - a sticking contact that would pull slips first (its slipping friction may press it on), a slipping one
@@ -270,16 +342,13 @@ static int lcp_enumerate(const contact_lcp *s, int *mode, double *dir, double *x
  * - a touching airborne contact that would be driven into the ground enters contact in its entry mode;
  * - a sticking contact outside the friction cone slips with its friction at the limit along the sticking force;
  * - a contact slipping from rest that would slide along its own friction sticks again.
- * Lowest index first, one switch per round (Murty's least-index rule); if that has not settled after 4 nc + 4
- * switches, every mode set is tried (lcp_enumerate). Returns 0, or 1 with the reason in msg. */
-static int lcp_decide(const contact_lcp *s, int *mode, double *dir, double *x, double *lambda, double *y,
-                      char *msg, size_t msg_len) {
-    const int nc = s->nc, max_rounds = 4 * nc + 4;
+ * Lowest index first, one switch per round (Murty's least-index rule), at most max_rounds switches.
+ * 0 consistent, 1 not settled, -1 a singular contact system. */
+static int pivot(const contact_lcp *s, int *mode, double *dir, double *x, double *lambda, double *y,
+                 int max_rounds) {
+    const int nc = s->nc;
     for (int round = 0; round < max_rounds; round++) {
-        if (lcp_solve(s, mode, dir, x, lambda, y)) {
-            snprintf(msg, msg_len, "rigid contact: singular contact system");
-            return 1;
-        }
+        if (lcp_solve(s, mode, dir, x, lambda, y)) return -1;
         int flip = -1;
         enum violation v = CONSISTENT;
         for (int pass = 0; pass < 2 && flip < 0; pass++)      /* pass 0: normal direction, pass 1: friction */
@@ -304,9 +373,28 @@ static int lcp_decide(const contact_lcp *s, int *mode, double *dir, double *x, d
             mode[k] = RIGID_STICK;
         }
     }
+    return 1;
+}
+
+/* The decision: pivot from the modes given; if that has not settled after 4 n + 4 switches (n: the contacts that
+ * may carry force), pivot from a projected Gauss-Seidel guess (pgs_modes); if that has not settled either,
+ * every mode set is tried (lcp_enumerate). Returns 0, or 1 with the reason in msg. */
+static int lcp_decide(const contact_lcp *s, int *mode, double *dir, double *x, double *lambda, double *y,
+                      char *msg, size_t msg_len) {
+    const int max_rounds = 4 * touching_count(s) + 4;
+    int r = pivot(s, mode, dir, x, lambda, y, max_rounds);
+    if (r == 0) return 0;
+    if (r < 0) {
+        snprintf(msg, msg_len, "rigid contact: singular contact system");
+        return 1;
+    }
+    /* cycling (friction can make the problem non-monotone, Painleve): switch from a projected Gauss-Seidel
+     * guess instead, then, as the last resort, try every mode set */
+    pgs_modes(s, mode, dir, y);
+    if (pivot(s, mode, dir, x, lambda, y, max_rounds) == 0) return 0;
     if (lcp_enumerate(s, mode, dir, x, lambda, y) == 0) return 0;
-    snprintf(msg, msg_len, "rigid contact: no consistent stick/slip/airborne mode set (%d switches, then every "
-             "set of the touching contacts tried)", max_rounds);
+    snprintf(msg, msg_len, "rigid contact: no consistent stick/slip/airborne mode set (%d switches twice, then "
+             "every set of the touching contacts tried)", max_rounds);
     return 1;
 }
 
@@ -338,6 +426,8 @@ int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const do
     for (int k = 0; k < nc; k++) {       /* Baumgarte: gap'' + 2 alpha gap' + alpha^2 gap = 0, v_t' + 2 alpha v_t = 0 */
         for (int c = 0; c < 3; c++) target[3 * k + c] = -2 * p->alpha * vc[3 * k + c];
         target[3 * k + 2] -= p->alpha * p->alpha * gap[k];
+        /* may carry force: on the ground, or (held modes) in contact by the decision */
+        touching[k] = gap[k] <= p->gap_tol || (!decide && mode[k] != RIGID_AIRBORNE);
     }
     find_aliases(&s, gap);
 
@@ -361,7 +451,6 @@ int rigid_solve_modes(int nq, int nc, const double *M, const double *f, const do
      * airborne, one on it sticks or slips by its sliding speed */
     entry_modes(nc, vc, p, entry, entry_dir);
     for (int k = 0; k < nc; k++) {
-        touching[k] = gap[k] <= p->gap_tol;
         mode[k] = touching[k] ? entry[k] : RIGID_AIRBORNE;
         dir[2 * k] = entry_dir[2 * k];
         dir[2 * k + 1] = entry_dir[2 * k + 1];

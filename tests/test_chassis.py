@@ -154,7 +154,6 @@ def test_energy_conserved_through_a_belly_landing(flat2):
 
 @pytest.mark.parametrize("extra, key, reason", [
     ('chassis = 1', "chassis", "expected true or false"),
-    ('chassis = true\ncontact = "rigid"', "chassis", "compliant ground only"),
 ])
 def test_scene_file_checks(extra, key, reason):
     import tomllib

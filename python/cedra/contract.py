@@ -45,8 +45,11 @@ except the contact forces, and the glue solves for accelerations and contact for
                   per contact (wheel) k, rows 3k..3k+2 = the contact frame's x (rolling), y (lateral), z (normal):
                   vc = W u is the velocity of the wheel's material point at the contact in that frame, and
                   d(vc)/dt = W udot + bias. gap = -penetration (gap <= 0: touching). A contact force
-                  lambda_k (same frame) enters as M udot = f + W' lambda. Outputs named wheel[i].Fn/Fx/Fy/mode are
-                  computed by the glue from its solution (cedra_out gives 0 there).
+                  lambda_k (same frame) enters as M udot = f + W' lambda. The contacts are the wheels' contact
+                  slots, contacts_per_wheel for each wheel in wheel order, then the collision points (if any).
+    cedra_out     (q, u, z, inp, par, lam[3nc]) -> (y[ny])   the glue's solution lam goes into the outputs (the
+                  wheels' totals, the per-contact outputs); the outputs wheel[i].mode and wheel[i].F*_mean are the
+                  glue's (from the contacts' modes and impulses: cedra_out gives 0 there).
 
 Chassis and link contact (chassis == True) keeps the collision points' forces out of cedra_f and adds:
     cedra_cgap    (q, inp, par)         -> (depth[1])   the deepest collision point's penetration (> 0: touching)
@@ -126,7 +129,9 @@ class ModelSpec:
     output_interval: float = 0.01
     solver: dict = field(default_factory=dict)   # default solver settings: method, tol, h_max
     contact: str = "compliant"              # "rigid": cedra_contact exists and the glue solves the contact forces
-    n_contacts: int = 0                     # rigid: number of contacts (wheels), in wheel order 1..n
+    n_contacts: int = 0                     # rigid: number of contacts (cedra_contact's nc)
+    contacts_per_wheel: int = 0             # rigid: contacts 0 .. 6 * contacts_per_wheel - 1 are the wheels', in
+    #                                         wheel order; the rest are the collision points
     block: str = "plant"                    # "plant": the ODE above in an embedded solver (fmu_src/plant.c);
     #                                         "controller": a sampled block (fmu_src/controller.c, see below)
     d_names: list[str] = field(default_factory=list)   # controller: discrete states, in xd order
@@ -174,6 +179,7 @@ class ModelSpec:
         if self.contact == "rigid":
             nc = self.n_contacts
             expected["cedra_contact"] = ([nq, nq, ni, npar], [(3 * nc, nq), (3 * nc, 1), (3 * nc, 1), (nc, 1)])
+            expected["cedra_out"] = ([nq, nq, nz, ni, npar, 3 * nc], [(ny, 1)])
         if self.chassis:
             expected["cedra_cgap"] = ([nq, ni, npar], [(1, 1)])
             expected["cedra_fc"] = ([nq, nq, ni, npar], [(nq, 1)])

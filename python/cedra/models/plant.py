@@ -139,8 +139,13 @@ class CedraModel:
         self._searches = {}         # wheel index -> its contact search (cedra_rim_search's result)
         self._rim_search = None
         self._one = []              # (frozen search result, its value where the wheel has one maximum)
+        # rigid contact: every contact the glue's constrained solve sees, in order (the wheels' contact slots, then
+        # the collision points): its frame velocity vc, gap and force symbol lam (Fx, Fy, Fn in its frame)
+        self.rigid_contacts = []
         self.contacts = [self._wheel_contact(wh) for wh in self.rover.wheels]
         self.chassis = self._chassis_contacts() if opt.chassis else []
+        # rigid: the contact forces, an input of cedra_out (the glue's solution), as the compliant law's are
+        self.lam = ca.vertcat(*[c["lam"] for c in self.rigid_contacts]) if self.rigid else ca.SX(0, 1)
         self.M, self.f = self.kane.equations()
         qd = self.rate(self.qf)
         # the work integral is the APPLIED torques' (with drives: after the clip and the gear loss), so
@@ -198,11 +203,13 @@ class CedraModel:
     def _chassis_contacts(self) -> list[dict]:
         """The collision points of the body and links (docs/model.md, Chassis and links): each point below the
         terrain gets the compliant law with delta = g n_Z, the terrain's normal under it and the point's own
-        velocity; in 2D one point stands for its twins across the rover (planar_weight)."""
-        if self.rigid:
-            raise ValueError("chassis contact is compliant only (rigid scenes: not built)")
+        velocity; in 2D one point stands for its twins across the rover (planar_weight). Rigid scenes: each point is
+        a contact of the glue's constrained solve like a wheel's (its frame's x along the rover's heading), its
+        force (the twins' together in 2D) the solve's."""
         p, i_ = self.p, self.i
         planar = self.opt.dims == "2d"
+        yaw = self.qf[IDX["yaw"]]
+        lateral = ca.vertcat(-ca.sin(yaw), ca.cos(yaw), 0)     # the frame's "axle": x = unit(lateral x n), forward
         out = []
         for pt in self.rover.collision_points:
             weight = pt.planar_weight if planar else 1
@@ -214,6 +221,10 @@ class CedraModel:
             n = n / ca.norm_2(n)
             depth = (h - pos[2]) * n[2]
             v = self.rate(pos)
+            if self.rigid:
+                lam = self._rigid_contact(contact_frame(lateral, n).T @ v, -depth)["lam"]
+                out.append(dict(link=pt.link, weight=1, depth=depth, Fn=lam[2], v_n=ca.dot(v, n)))
+                continue
             Fn, Ft, v_n, _ = compliant_law(depth, n, v, p["ground_k"], p["ground_d"], i_["mu"], p["v_eps"])
             out.append(dict(link=pt.link, weight=weight, depth=depth, Fn=Fn, v_n=v_n,
                             Q=ca.jacobian(v, self.u).T @ (weight * (Fn * n + Ft))))
@@ -233,10 +244,18 @@ class CedraModel:
 
     @property
     def multi_contact(self) -> bool:
-        """Several contacts per wheel (docs/model.md, Several contacts per wheel): compliant contact on a curved
-        terrain, analytic or the heightmap (symbolic_rim aside: the tests' reference of the single-contact search).
-        Planar terrain has one contact exactly; rigid contact keeps one (the deepest)."""
-        return not self.rigid and not self.terrain.planar and not self.symbolic_rim
+        """Several contacts per wheel (docs/model.md, Several contacts per wheel): a curved terrain, analytic or the
+        heightmap, compliant or rigid (symbolic_rim aside: the tests' reference of the single-contact search).
+        Planar terrain has one contact exactly."""
+        return not self.terrain.planar and not self.symbolic_rim
+
+    def _rigid_contact(self, frame_velocity, gap) -> dict:
+        """A contact of the rigid model: its force is a symbol the glue's solve fills (lam: Fx, Fy, Fn in the
+        contact frame); vc, the contact frame's velocity components, and gap go to cedra_contact."""
+        lam = ca.SX.sym(f"lam{len(self.rigid_contacts)}", 3)
+        c = dict(vc=frame_velocity, gap=gap, lam=lam)
+        self.rigid_contacts.append(c)
+        return c
 
     def _wheel_contact(self, wh) -> dict:
         """A wheel's contacts, their forces added to Kane's equations, and the wheel's totals in the per-wheel
@@ -268,7 +287,11 @@ class CedraModel:
             v_point = ca.substitute(v_at, at, geo.point)
             vc = geo.frame.T @ v_point                      # contact-frame components (x, y, n)
             part = dict(geo=geo, present=pres, v_point=v_point, vc=vc, v_n=ca.dot(v_point, geo.normal))
-            if not self.rigid:
+            if self.rigid:
+                # a slot without a maximum is never in contact (gap 1 m); the glue's solve gives the force
+                lam = self._rigid_contact(vc, ca.if_else(pres, -geo.depth, 1.0))["lam"]
+                part |= dict(force=geo.frame @ lam, Fn=lam[2], Fx=lam[0], Fy=lam[1], slip=ca.norm_2(vc[0:2]))
+            else:
                 force, Fn, Fx, Fy, slip, _ = compliant_force(geo, v_point, p["ground_k"], p["ground_d"], i_["mu"],
                                                            p["v_eps"])
                 self.kane.add_point_force(v_point, force, ca.substitute(ca.jacobian(v_at, self.u), at, geo.point))
@@ -277,9 +300,6 @@ class CedraModel:
         if len(parts) == 1:
             c = parts[0]
             geo = c["geo"]
-            if self.rigid:   # forces come from the glue's constrained solve; 0 placeholders in the outputs
-                return dict(geo=geo, Fn=0, Fx=0, Fy=0, slip=ca.norm_2(c["vc"][0:2]), flag=geo.depth >= 0,
-                            v_point=c["v_point"], vc=c["vc"], parts=parts, wheel=wh)
             return dict(geo=geo, Fn=c["Fn"], Fx=c["Fx"], Fy=c["Fy"], slip=c["slip"], flag=geo.depth > 0,
                         force=c["force"], v_n=c["v_n"], parts=parts, wheel=wh)
         depths = [c["geo"].depth for c in parts]
@@ -364,8 +384,12 @@ class CedraModel:
                   else f"wheel {k} contact mode: 0 airborne, 2 in contact", "Integer"),
                  ca.if_else(c["flag"], 2, 0)),
             ]
-            o.append((_out(f"wheel[{k}].contacts", "1", f"wheel {k} contacts touching the terrain (delta_k > 0)",
-                           "Integer"), sum(ca.if_else(c2["geo"].depth > 0, 1, 0) for c2 in c["parts"])))
+            if self.rigid:     # a rigid contact touches at delta = 0: the ones that carry force
+                o.append((_out(f"wheel[{k}].contacts", "1", f"wheel {k} contacts carrying a normal force",
+                               "Integer"), sum(ca.if_else(c2["Fn"] > 0, 1, 0) for c2 in c["parts"])))
+            else:
+                o.append((_out(f"wheel[{k}].contacts", "1", f"wheel {k} contacts touching the terrain (delta_k > 0)",
+                               "Integer"), sum(ca.if_else(c2["geo"].depth > 0, 1, 0) for c2 in c["parts"])))
             if len(c["parts"]) > 1:
                 o += self._contact_outputs(k, c["parts"])
             for j, axis in enumerate("xyz"):
@@ -505,16 +529,16 @@ class CedraModel:
         fns = {}
         res_ = self.resolve      # the contact search's frozen symbols, a heightmap's contact points
         if self.rigid:
-            vc = ca.vertcat(*[c["vc"] for c in self.contacts])
+            vc = ca.vertcat(*[c["vc"] for c in self.rigid_contacts])
             W = ca.jacobian(vc, u)
-            fns["cedra_contact"] = _function("cedra_contact", [q, u, inp, par], res_(
-                [W, ca.jtimes(vc, q, u), vc, ca.vertcat(*[-c["geo"].depth for c in self.contacts])]))
+            fns["cedra_contact"] = self._contract("cedra_contact", [q, u, inp, par], [
+                W, ca.jtimes(vc, q, u), vc, ca.vertcat(*[c["gap"] for c in self.rigid_contacts])], True, one)
         sw, hold, hold_now, _ = self.switches
         if sw:
             hv = ca.vertcat(*hold) if hold else ca.SX(0, 1)
             fns["cedra_switch"] = self._contract("cedra_switch", [q, u, inp, par, hv], [
                 ca.vertcat(*sw), ca.vertcat(*hold_now) if hold else ca.SX(0, 1)], False, one)
-        if self.chassis:
+        if self.chassis and not self.rigid:
             Qc = self.chassis_force
             fns["cedra_cgap"] = _function("cedra_cgap", [q, inp, par], res_([self.chassis_depth], derivatives=False))
             fns["cedra_fc"] = _function("cedra_fc", [q, u, inp, par], res_([Qc], derivatives=False))
@@ -526,7 +550,8 @@ class CedraModel:
             "cedra_rjac": self._contract("cedra_rjac", [q, u, a, inp, par],
                                          [ca.jacobian(r, q), ca.jacobian(r, u),
                                           ca.jacobian(self.power, q), ca.jacobian(self.power, u)], True, one),
-            "cedra_out": self._contract("cedra_out", [q, u, z, inp, par], [y], True, one),
+            "cedra_out": self._contract("cedra_out", [q, u, z, inp, par] + ([self.lam] if self.rigid else []), [y],
+                                        True, one),
             "cedra_settle": self._contract("cedra_settle", [q, inp, par], [res, jac], True, one),
             "cedra_guess": _function("cedra_guess", [q, inp, par], [self.guess()]),
             "cedra_check": _function("cedra_check", [q, u, inp, par], [self.check()]),
@@ -586,9 +611,11 @@ class CedraModel:
                          inputs=list(self.inputs), outputs=outs, q_start=q_start, settle_idx=self.settle_idx,
                          start_params={f"start.{n}": k for k, n in enumerate(self.q_names)},
                          functions=dict(self._num), contact=self.opt.contact,
-                         n_contacts=len(self.contacts) if self.rigid else 0, heightmap_file=self.opt.heightmap,
+                         n_contacts=len(self.rigid_contacts),
+                         contacts_per_wheel=len(self.contacts[0]["parts"]) if self.rigid else 0,
+                         heightmap_file=self.opt.heightmap,
                          switch_names=list(self.switches[3]), n_hold=len(self.switches[1]),
-                         chassis=bool(self.chassis),
+                         chassis=bool(self.chassis) and not self.rigid,   # rigid: contacts of cedra_contact
                          **kw)
 
     # ---------------- numeric helpers (tests, reference solutions) ----------------

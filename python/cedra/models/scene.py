@@ -12,8 +12,8 @@ before any code is generated.
     steering = false                # 3d only: steering servo on wheels 5 and 6
     locked_wheels = false           # wheels welded to their carriers (a parking brake; no torque inputs)
     drives = false                  # motor-and-gear model between tau[i] and the wheel (docs/model.md, Drives)
-    chassis = false                 # the body's and links' collision points touch the terrain (compliant contact;
-                                    # docs/model.md, Chassis and links)
+    chassis = false                 # the body's and links' collision points touch the terrain (docs/model.md,
+                                    # Chassis and links)
     stop_time = 15.0                # s, the FMU's DefaultExperiment
     output_interval = 0.01          # s, the DefaultExperiment's step size
     [solver]                        # defaults of the FMU's solver.* parameters
@@ -174,8 +174,6 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     chassis = data.get("chassis", False)
     if not isinstance(chassis, bool):
         _fail(path, "chassis", f"expected true or false, got {chassis!r}")
-    if chassis and contact == "rigid":
-        _fail(path, "chassis", "chassis contact is built for compliant ground only (contact = \"compliant\")")
     stop_time = _number(path, "stop_time", data.get("stop_time", 10.0), positive=True)
     interval = _number(path, "output_interval", data.get("output_interval", 0.01), positive=True)
     if interval > stop_time:
