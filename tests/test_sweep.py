@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import signal
 import textwrap
+from dataclasses import replace
 
 import psutil
 import pytest
@@ -582,12 +583,22 @@ def test_report_counts_tables_monotonicity_and_failures(tmp_path):
     tight_rows = [dict(r, id=tight.run_id({**p, "solver.tol": 1e-9})) for p, r in zip(sw.runs(), rows)]
     flip = next(r for r in tight_rows if r["terrain_h"] == "0.1" and r["mu"] == "0.8")
     flip.update(verdict="stuck", reason="stuck at tol", final_x="1.25")
-    md = sweep_report.write(sw, rows, "c", 1.0, 1.0, (1e-9, tight, tight_rows)).read_text()
+    md = sweep_report.write(sw, rows, "c", 1.0, 1.0, ("solver.tol", 1e-9, tight, tight_rows)).read_text()
     assert "12 runs compared, 1 verdict(s) differ:" in md
     assert "| 0.1 | 0.8 | over | stuck | 3 | 1.25 | stuck at tol |" in md
     same = [dict(r, id=tight.run_id({**p, "solver.tol": 1e-9})) for p, r in zip(sw.runs(), rows)]
-    md = sweep_report.write(sw, rows, "c", 1.0, 1.0, (1e-9, tight, same)).read_text()
+    md = sweep_report.write(sw, rows, "c", 1.0, 1.0, ("solver.tol", 1e-9, tight, same)).read_text()
     assert "12 runs compared, every verdict the same." in md
+    # Moreau-Jean converges in its step, not in solver.tol: each check is refused where it means nothing
+    with pytest.raises(SweepError, match="adaptive solver: use --check-tol"):
+        sw_mod.tightened(sw, 1e-5, "--check-h")
+    moreau = replace(sw, fixed={**sw.fixed, "solver.method": 4})
+    with pytest.raises(SweepError, match="solver.tol does nothing there\\): use --check-h"):
+        sw_mod.tightened(moreau, 1e-9)
+    tight = sw_mod.tightened(moreau, 1.25e-5, "--check-h")
+    assert tight.name == f"{sw.name}_h1.25e-05" and tight.fixed["solver.h_max"] == 1.25e-5
+    md = sweep_report.write(moreau, rows, "c", 1.0, 1.0, ("solver.h_max", 1.25e-5, tight, [])).read_text()
+    assert "## The same verdicts at solver.h_max 1.25e-05?" in md
 
 
 def test_check_tol_cli_writes_the_report(tmp_path, bump2d_fmu, capsys):

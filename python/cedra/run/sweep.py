@@ -704,16 +704,38 @@ def _same_build(path: Path, spec) -> bool:
         return False
 
 
-def tightened(sw: Sweep, tol: float) -> Sweep:
-    """The same sweep at solver.tol = tol: its own table <name>_tol<tol>.csv in the same directory, no map."""
-    if sw.target.kind != "scene" or "solver.tol" not in sw.target.limits:
-        raise SweepError(f"{sw.path}: --check-tol: only for a scene's sweep (its runs' solver.tol)")
-    if "solver.tol" in sw.grid or "solver.tol" in sw.random:
-        raise SweepError(f"{sw.path}: --check-tol: solver.tol is what this sweep varies")
-    lo, hi = sw.target.limits["solver.tol"]
-    if not (math.isfinite(tol) and tol > 0) or (lo is not None and tol < lo) or (hi is not None and tol > hi):
-        raise SweepError(f"{sw.path}: --check-tol: {tol:g} is outside the range of solver.tol [{lo}, {hi}]")
-    return replace(sw, name=f"{sw.name}_tol{tol:g}", fixed={**sw.fixed, "solver.tol": tol}, map=None)
+# the convergence checks: flag -> (the solver parameter it sets, the table's suffix). The adaptive solvers'
+# answers converge in solver.tol; Moreau-Jean's (a fixed step) in solver.h_max, where solver.tol does nothing.
+CHECKS = {"--check-tol": ("solver.tol", "tol"), "--check-h": ("solver.h_max", "h")}
+
+
+def _steps_fixed(sw: Sweep) -> bool:
+    """whether the sweep's scene steps by Moreau-Jean (its default solver method, or the sweep's fixed one)"""
+    from cedra.contract import SOLVER_METHODS
+    method = sw.fixed.get("solver.method")
+    if method is not None:
+        return SOLVER_METHODS[int(method)] == "moreau"
+    return sw.target.scene.solver.get("method") == "moreau"
+
+
+def tightened(sw: Sweep, value: float, flag: str = "--check-tol") -> Sweep:
+    """The same sweep at the check's solver parameter = value (CHECKS): its own table <name>_<suffix><value>.csv in
+    the same directory, no map."""
+    key, suffix = CHECKS[flag]
+    if sw.target.kind != "scene" or key not in sw.target.limits:
+        raise SweepError(f"{sw.path}: {flag}: only for a scene's sweep (its runs' {key})")
+    if key in sw.grid or key in sw.random:
+        raise SweepError(f"{sw.path}: {flag}: {key} is what this sweep varies")
+    fixed_step = _steps_fixed(sw)
+    if fixed_step != (flag == "--check-h"):
+        raise SweepError(f"{sw.path}: {flag}: this sweep's runs step " +
+                         ("by Moreau-Jean (a fixed step, solver.tol does nothing there): use --check-h" if fixed_step
+                          else "with an adaptive solver: use --check-tol"))
+    lo, hi = sw.target.limits[key]
+    if not (math.isfinite(value) and value > 0) or (lo is not None and value < lo) or \
+            (hi is not None and value > hi):
+        raise SweepError(f"{sw.path}: {flag}: {value:g} is outside the range of {key} [{lo}, {hi}]")
+    return replace(sw, name=f"{sw.name}_{suffix}{value:g}", fixed={**sw.fixed, key: value}, map=None)
 
 
 # ------------------------------------------------------------------ command line
@@ -741,15 +763,19 @@ def add_parser(sub):
     p.add_argument("--resume", action="store_true", help="run only the runs missing from the table")
     p.add_argument("--overwrite", action="store_true", help="start the table again")
     p.add_argument("--quiet", action="store_true", help="no progress")
-    p.add_argument("--check-tol", type=float, metavar="TOL",
-                   help="run every run again at solver.tol = TOL; the map's report says whether every verdict is the "
-                   "same (e.g. 1e-9)")
+    check = p.add_mutually_exclusive_group()
+    check.add_argument("--check-tol", type=float, metavar="TOL",
+                       help="run every run again at solver.tol = TOL; the map's report says whether every verdict is "
+                       "the same (e.g. 1e-9)")
+    check.add_argument("--check-h", type=float, metavar="H",
+                       help="for scenes stepped by Moreau-Jean (rigid contact): run every run again at solver.h_max = "
+                       "H; the map's report says whether every verdict is the same (e.g. a quarter of the scene's)")
 
 
 def command(args) -> str:
     """The command line of these arguments, for the report."""
     words = ["python -m cedra sweep", args.file]
-    for flag in ("scheduler", "workers", "check_tol"):
+    for flag in ("scheduler", "workers", "check_tol", "check_h"):
         if getattr(args, flag, None) is not None:
             words.append(f"--{flag.replace('_', '-')} {getattr(args, flag)}")
     if args.build != "build":
@@ -763,14 +789,16 @@ def main(args) -> int:
     from cedra.reports.common import load_average
     from cedra.run import sweep_report
     load_at_start = load_average()
-    check = getattr(args, "check_tol", None)
+    flag, check = next(((f, v) for f, v in (("--check-tol", getattr(args, "check_tol", None)),
+                                           ("--check-h", getattr(args, "check_h", None))) if v is not None),
+                       (None, None))
     try:
         sw = load(resolve(args.file))
         if args.workers is not None and args.workers < 1:
             raise SweepError(f"--workers: expected >= 1, got {args.workers}")
-        tight = tightened(sw, check) if check is not None else None
+        tight = tightened(sw, check, flag) if check is not None else None
         if tight is not None and not sw.map:
-            raise SweepError(f"{sw.path}: --check-tol: the sweep has no [map], whose report it goes into")
+            raise SweepError(f"{sw.path}: {flag}: the sweep has no [map], whose report it goes into")
         t0 = t_all = time.perf_counter()
         sweeps = [sw] + ([tight] if tight else [])
         for s in sweeps:
@@ -786,7 +814,7 @@ def main(args) -> int:
     if sw.map:
         rows = read_table(sw.table)
         print(f"map {draw(sw, rows)}")
-        checked = (check, tight, read_table(tight.table)) if tight else None
+        checked = (CHECKS[flag][0], check, tight, read_table(tight.table)) if tight else None
         elapsed = time.perf_counter() - t_all
         print(f"report {sweep_report.write(sw, rows, command(args), elapsed, load_at_start, checked)}")
     return 0

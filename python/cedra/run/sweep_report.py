@@ -116,7 +116,8 @@ def tolerance_differences(sw, rows, tight, tight_rows) -> tuple[int, list[tuple]
 
 
 def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float, check=None) -> Path:
-    """Write <out>/<name>.md; check = (tol, the tight sweep, its rows) after --check-tol."""
+    """Write <out>/<name>.md; check = (the solver parameter, its value, the tight sweep, its rows) after --check-tol
+    or --check-h."""
     from cedra.reports.common import provenance
     from cedra.run.sweep import VERDICTS, actuation
     ax = Axes(sw, rows)
@@ -208,19 +209,19 @@ def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float,
 
     # the tolerance check
     if check is not None:
-        tol, tight, tight_rows = check
+        key, tol, tight, tight_rows = check
+        at = f"{key.split('.')[-1]} {tol:g}"
         compared, diffs = tolerance_differences(sw, rows, tight, tight_rows)
         tight_failed = sum(r["status"] != "ok" for r in tight_rows)
         tight_walls = [float(r["wall_s"]) for r in tight_rows if _finite(r["wall_s"])]
         walls_text = (f", wall time per run median {statistics.median(tight_walls):.2f} s, max "
                       f"{max(tight_walls):.1f} s" if tight_walls else "")
-        lines += [f"## The same verdicts at solver.tol {tol:g}?", "",
-                  f"Every run again at solver.tol = {tol:g} (table `{tight.table.name}`; {tight_failed} of its runs "
+        lines += [f"## The same verdicts at {key} {tol:g}?", "",
+                  f"Every run again at {key} = {tol:g} (table `{tight.table.name}`; {tight_failed} of its runs "
                   f"failed{walls_text}): {compared} runs compared, "
                   + ("every verdict the same." if not diffs else f"{len(diffs)} verdict(s) differ:"), ""]
         if diffs:
-            lines.append(_table(sw.parameters + ["verdict", f"at tol {tol:g}", "final_x", f"at tol {tol:g}",
-                                                 f"reason at tol {tol:g}"],
+            lines.append(_table(sw.parameters + ["verdict", f"at {at}", "final_x", f"at {at}", f"reason at {at}"],
                                 [[_num(p[k]) for k in sw.parameters] + [ax.category(a), ax.category(b),
                                                                           _num(a.get("final_x", "")),
                                                                           _num(b.get("final_x", "")), b["reason"]]
