@@ -82,37 +82,39 @@ class Scene:
         return s
 
 
-def _fail(path, key, reason):
-    raise SceneError(f"{path}: key '{key}': {reason}")
+# The checks of a file's values (scene files here, optimization problem files in cedra.run.optimize): each fails
+# with `error` (SceneError by default) saying "<path>: key '<key>': <reason>".
+def fail(path, key, reason, error=None):
+    raise (error or SceneError)(f"{path}: key '{key}': {reason}")
 
 
-def _number(path, key, value, lo=None, hi=None, positive=False, lo_exclusive=False):
+def number(path, key, value, lo=None, hi=None, positive=False, lo_exclusive=False, error=None):
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        _fail(path, key, f"expected a number, got {value!r}")
+        fail(path, key, f"expected a number, got {value!r}", error)
     value = float(value)
     if not math.isfinite(value):
-        _fail(path, key, f"must be finite, got {value}")
+        fail(path, key, f"must be finite, got {value}", error)
     if positive and value <= 0:
-        _fail(path, key, f"must be > 0, got {value}")
+        fail(path, key, f"must be > 0, got {value:g}", error)
     if lo is not None and lo_exclusive and value <= lo:
-        _fail(path, key, f"must be > {lo}, got {value}")
+        fail(path, key, f"must be > {lo:g}, got {value:g}", error)
     if lo is not None and value < lo:
-        _fail(path, key, f"must be >= {lo}, got {value}")
+        fail(path, key, f"must be >= {lo:g}, got {value:g}", error)
     if hi is not None and value > hi:
-        _fail(path, key, f"must be <= {hi}, got {value}")
+        fail(path, key, f"must be <= {hi:g}, got {value:g}", error)
     return value
 
 
-def _choice(path, key, value, choices):
+def choice(path, key, value, choices, error=None):
     if value not in choices:
-        _fail(path, key, f"must be one of {sorted(choices)}, got {value!r}")
+        fail(path, key, f"must be one of {', '.join(sorted(choices))}, got {value!r}", error)
     return value
 
 
 def _table(path, data, key):
     t = data.get(key, {})
     if not isinstance(t, dict):
-        _fail(path, key, "must be a table")
+        fail(path, key, "must be a table")
     return t
 
 
@@ -121,88 +123,88 @@ def _heightmap_file(path, data, terrain) -> str:
     fails before any code is generated."""
     if terrain != "heightmap":
         if "heightmap" in data:
-            _fail(path, "heightmap", f"only for terrain = 'heightmap' (this scene's terrain is '{terrain}')")
+            fail(path, "heightmap", f"only for terrain = 'heightmap' (this scene's terrain is '{terrain}')")
         return ""
     if "heightmap" not in data:
-        _fail(path, "heightmap", "missing: terrain 'heightmap' needs its grid file")
+        fail(path, "heightmap", "missing: terrain 'heightmap' needs its grid file")
     name = data["heightmap"]
     if not isinstance(name, str) or not name:
-        _fail(path, "heightmap", f"expected a file name, got {name!r}")
+        fail(path, "heightmap", f"expected a file name, got {name!r}")
     base = Path(path).parent if path != "<scene>" else Path.cwd()
     file = (base / name).resolve()
     try:
         heightmap.load(file)
     except heightmap.HeightmapError as e:
-        _fail(path, "heightmap", str(e))
+        fail(path, "heightmap", str(e))
     return str(file)
 
 
 def parse(data: dict, path: str = "<scene>") -> Scene:
     for key in data:
         if key not in TOP_KEYS:
-            _fail(path, key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")
+            fail(path, key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")
     for key in ("name", "dims", "terrain"):
         if key not in data:
-            _fail(path, key, "missing")
+            fail(path, key, "missing")
     name = data["name"]
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
-        _fail(path, "name", f"must be an identifier (letters, digits, underscore), got {name!r}")
-    dims = _choice(path, "dims", data["dims"], {"2d", "3d"})
-    terrain = _choice(path, "terrain", data["terrain"], set(KINDS))
+        fail(path, "name", f"must be an identifier (letters, digits, underscore), got {name!r}")
+    dims = choice(path, "dims", data["dims"], {"2d", "3d"})
+    terrain = choice(path, "terrain", data["terrain"], set(KINDS))
     if dims == "2d" and terrain in ("bump3d", "waves", "heightmap"):
-        _fail(path, "terrain", f"'{terrain}' varies along Y and needs dims = '3d'")
+        fail(path, "terrain", f"'{terrain}' varies along Y and needs dims = '3d'")
     heightmap_file = _heightmap_file(path, data, terrain)
     steps = data.get("stairs_steps", STAIRS_STEPS)
     if "stairs_steps" in data and terrain != "stairs":
-        _fail(path, "stairs_steps", f"only for terrain = 'stairs' (this scene's terrain is '{terrain}')")
+        fail(path, "stairs_steps", f"only for terrain = 'stairs' (this scene's terrain is '{terrain}')")
     if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 50:
-        _fail(path, "stairs_steps", f"expected an integer in 1..50, got {steps!r}")
-    contact = _choice(path, "contact", data.get("contact", "compliant"), {"compliant", "rigid"})
+        fail(path, "stairs_steps", f"expected an integer in 1..50, got {steps!r}")
+    contact = choice(path, "contact", data.get("contact", "compliant"), {"compliant", "rigid"})
     steering = data.get("steering", False)
     if not isinstance(steering, bool):
-        _fail(path, "steering", f"expected true or false, got {steering!r}")
+        fail(path, "steering", f"expected true or false, got {steering!r}")
     if dims == "2d" and steering:
-        _fail(path, "steering", "a 2d scene has no steering")
+        fail(path, "steering", "a 2d scene has no steering")
     locked = data.get("locked_wheels", False)
     if not isinstance(locked, bool):
-        _fail(path, "locked_wheels", f"expected true or false, got {locked!r}")
+        fail(path, "locked_wheels", f"expected true or false, got {locked!r}")
     drives = data.get("drives", False)
     if not isinstance(drives, bool):
-        _fail(path, "drives", f"expected true or false, got {drives!r}")
+        fail(path, "drives", f"expected true or false, got {drives!r}")
     if drives and locked:
-        _fail(path, "drives", "locked wheels have no motors (locked_wheels = true)")
+        fail(path, "drives", "locked wheels have no motors (locked_wheels = true)")
     chassis = data.get("chassis", False)
     if not isinstance(chassis, bool):
-        _fail(path, "chassis", f"expected true or false, got {chassis!r}")
-    stop_time = _number(path, "stop_time", data.get("stop_time", 10.0), positive=True)
-    interval = _number(path, "output_interval", data.get("output_interval", 0.01), positive=True)
+        fail(path, "chassis", f"expected true or false, got {chassis!r}")
+    stop_time = number(path, "stop_time", data.get("stop_time", 10.0), positive=True)
+    interval = number(path, "output_interval", data.get("output_interval", 0.01), positive=True)
     if interval > stop_time:
-        _fail(path, "output_interval", f"{interval} is longer than stop_time {stop_time}")
+        fail(path, "output_interval", f"{interval} is longer than stop_time {stop_time}")
     description = data.get("description", "")
     if not isinstance(description, str):
-        _fail(path, "description", "must be a string")
+        fail(path, "description", "must be a string")
 
     solver = dict(method="rodas4", tol=1e-6, h_max=0.01)
     st = _table(path, data, "solver")
     for key, value in st.items():
         k = f"solver.{key}"
         if key == "method":
-            solver["method"] = _choice(path, k, value, set(SOLVERS))
+            solver["method"] = choice(path, k, value, set(SOLVERS))
         elif key in ("tol", "h_max"):
-            solver[key] = _number(path, k, value, positive=True)
+            solver[key] = number(path, k, value, positive=True)
         elif key == "max_wall_time":
-            solver[key] = _number(path, k, value, positive=True)
+            solver[key] = number(path, k, value, positive=True)
             if solver[key] > MAX_WALL_LIMIT:
-                _fail(path, k, f"must be <= {MAX_WALL_LIMIT:g} s (a call always has a bound), got {solver[key]}")
+                fail(path, k, f"must be <= {MAX_WALL_LIMIT:g} s (a call always has a bound), got {solver[key]}")
         elif key == "max_steps":
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_STEPS_LIMIT:
-                _fail(path, k, f"expected an integer in 1..{MAX_STEPS_LIMIT}, got {value!r}")
+                fail(path, k, f"expected an integer in 1..{MAX_STEPS_LIMIT}, got {value!r}")
             solver[key] = value
         else:
-            _fail(path, k, "unknown key (known: method, tol, h_max, max_steps, max_wall_time)")
+            fail(path, k, "unknown key (known: method, tol, h_max, max_steps, max_wall_time)")
 
     if solver["method"] == "moreau" and contact != "rigid":
-        _fail(path, "solver.method", "moreau is the rigid contact's own time stepping (contact = \"rigid\")")
+        fail(path, "solver.method", "moreau is the rigid contact's own time stepping (contact = \"rigid\")")
     opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked,
                        heightmap=heightmap_file, drives=drives, stairs_steps=steps, chassis=chassis)
     scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path))
@@ -212,18 +214,18 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
         for key, value in _table(path, data, section).items():
             if key not in known:
                 what = "an input" if section == "inputs" else "a parameter"
-                _fail(path, f"{section}.{key}", f"not {what} of this scene "
+                fail(path, f"{section}.{key}", f"not {what} of this scene "
                       f"(dims={dims}, terrain={terrain}, steering={steering}, drives={drives})")
             q = known[key]
-            values[key] = _number(path, f"{section}.{key}", value, q.min, q.max, lo_exclusive=q.min_exclusive)
+            values[key] = number(path, f"{section}.{key}", value, q.min, q.max, lo_exclusive=q.min_exclusive)
             if terrain == "stairs" and key == "terrain_h" and values[key] < 0:
-                _fail(path, f"{section}.{key}", f"the stairs' rise must be >= 0, got {values[key]}")
+                fail(path, f"{section}.{key}", f"the stairs' rise must be >= 0, got {values[key]}")
         setattr(scene, section, values)
     names, _ = projection(opt)
     for key, value in _table(path, data, "start").items():
         if key not in names:
-            _fail(path, f"start.{key}", f"not a coordinate of this scene (coordinates: {', '.join(names)})")
-        scene.start[key] = _number(path, f"start.{key}", value)
+            fail(path, f"start.{key}", f"not a coordinate of this scene (coordinates: {', '.join(names)})")
+        scene.start[key] = number(path, f"start.{key}", value)
     return scene
 
 

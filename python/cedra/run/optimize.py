@@ -70,7 +70,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from cedra.models.scene import SceneError, load_shipped, read_toml, shipped
+from cedra.models.scene import SceneError, choice, fail, load_shipped, number, read_toml, shipped
 from cedra.rover.parameters import DEFAULTS
 
 OBJECTIVES = ("energy", "peak_friction", "time")
@@ -112,28 +112,15 @@ class Problem:
 
 
 def _fail(path, key, reason):
-    raise ProblemError(f"{path}: key '{key}': {reason}")
+    fail(path, key, reason, ProblemError)
 
 
 def _number(path, key, value, lo=None, hi=None, positive=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        _fail(path, key, f"expected a number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        _fail(path, key, f"must be finite, got {value}")
-    if positive and value <= 0:
-        _fail(path, key, f"must be > 0, got {value:g}")
-    if lo is not None and value < lo:
-        _fail(path, key, f"must be >= {lo:g}, got {value:g}")
-    if hi is not None and value > hi:
-        _fail(path, key, f"must be <= {hi:g}, got {value:g}")
-    return value
+    return number(path, key, value, lo, hi, positive, error=ProblemError)
 
 
 def _choice(path, key, value, choices):
-    if value not in choices:
-        _fail(path, key, f"must be one of {', '.join(choices)}, got {value!r}")
-    return value
+    return choice(path, key, value, choices, ProblemError)
 
 
 def _scene_choices() -> list[str]:
