@@ -17,7 +17,7 @@ turns the wheels (drives and their envelope, or plain torque: cedra.run.sweep.ac
 """
 from __future__ import annotations
 
-import math
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -128,12 +128,12 @@ def draw(sw, rows: list[dict]) -> Path:
     fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=8)
     from cedra.run.sweep import actuation
     default_title = f"{sw.name}: {spec['verdict']} ({len(rows)} runs of {sw.target.kind} {sw.target.name})"
-    title = spec.get("title", default_title)
     how = actuation(sw)
-    if how:
-        title += f"\n{sw.target.scene.name}: {how}"
-    fig.suptitle(title, x=0.02, ha="left", fontsize=10)
-    fig.tight_layout(rect=(0, 0.06, 1, 0.9 if how else 0.93))
+    lines = [spec.get("title", default_title)] + ([f"{sw.target.scene.name}: {how}"] if how else [])
+    # wrapped to the figure's width (about 13 characters of 10 pt per inch), the plots below the lines it takes
+    lines = [w for line in lines for w in textwrap.wrap(line, int(13 * fig.get_figwidth()))]
+    fig.suptitle("\n".join(lines), x=0.02, ha="left", fontsize=10)
+    fig.tight_layout(rect=(0, 0.06, 1, max(0.7, 0.965 - 0.035 * len(lines))))
     out = sw.out / f"{sw.name}.png"
     fig.savefig(out, dpi=110)
     plt.close(fig)
