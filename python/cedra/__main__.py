@@ -157,6 +157,8 @@ def main(argv=None):
                     help="only the MuJoCo side-by-side table (the paper's 15 s run)")
     be.add_argument("--steps", action="store_true",
                     help="only MuJoCo on the step and the stairs (boxes): CPU, verdicts, unpaid energy gains")
+    be.add_argument("--controller", action="store_true",
+                    help="only the drive controller's cost per sample over the bump run, each mode (worst sample)")
     be.add_argument("--step-cost", action="store_true",
                     help="only the cost of one implicit step: rodas4 dense against reduced (Schur) stage solve, "
                          "ros34pw2")

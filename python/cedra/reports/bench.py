@@ -17,6 +17,10 @@ peak normal force, steps, each FMU row's peak against its reference, and the rat
 matching pairs at the defaults and at the fastest setting whose forces converged (peak within CONVERGED).
 `--quick`: only that table, 1 s runs (the tests); `--side-by-side`: only that table.
 
+The drive controller's cost per sample (`--controller`: only that): the paper's bump run co-simulated with
+drive2d in each control mode, then every sample's measurements replayed through the controller FMU three times;
+the median, 99.9 % and worst wall time of one fmi2DoStep (through FMPy: an upper bound of the C's own cost).
+
 Last, MuJoCo on the step and the stairs as boxes (cedra.reports.bench_steps; `--steps`: only that table): CPU,
 where each run ended and its verdict, and the largest energy gain no motor paid for.
 """
@@ -255,12 +259,32 @@ def print_step_cost(build: Path, stop_time=8.0) -> int:
     return 0 if all(r["ok"] for r in rows) else 1
 
 
+def print_controller_cost(build: Path) -> int:
+    """The drive controller's cost per sample over the bump run, in each mode (cedra.reports.traction)."""
+    from cedra.reports.traction import MODES, run_modes, sample_cost
+    if not all((build / f"{n}.fmu").exists() for n in ("bump2d", "drive2d")):
+        print(f"\ncontroller cost: {build}/bump2d.fmu or drive2d.fmu not found (python -m cedra build)")
+        return 1
+    print("\nthe drive controller's cost per sample: the bump run (bump2d + drive2d, 15 s, 0.01 s samples) in each "
+          "mode, every sample's measurements replayed 3 times through drive2d (fmi2DoStep through FMPy)")
+    print("| mode | samples | median us | 99.9 % us | worst us |")
+    print("|---|---|---|---|---|")
+    runs = run_modes(build, "bump2d")
+    for mode in MODES:
+        c = sample_cost(runs[mode], build, mode)
+        print(f"| {MODES[mode]} | {c['samples']} | {c['median_us']:.1f} | {c['p999_us']:.1f} | "
+              f"{c['max_us']:.1f} |")
+    return 0
+
+
 def main(args):
     build = Path(getattr(args, "build", "build"))
     given = getattr(args, "stop_time", None)
     stop_time = 10.0 if given is None else float(given)
     if getattr(args, "step_cost", False):
         return print_step_cost(build)
+    if getattr(args, "controller", False):
+        return print_controller_cost(build)
     if getattr(args, "steps", False):
         from cedra.reports.bench_steps import STOP, print_steps
         return print_steps(build, STOP if given is None else float(given))
@@ -310,6 +334,7 @@ def main(args):
         for label in ("bump2d_rigid", "bump2d_rigid dopri5"):
             print(f"  ratio {label} / bump2d wall time: x{rows[label]['wall'] / rows['bump2d']['wall']:.2f}")
     rc = max(rc, print_step_cost(build))
+    rc = max(rc, print_controller_cost(build))
     rc = max(rc, print_side_by_side(build, SIDE_STOP, quiet=getattr(args, "quiet", False)))
     from cedra.reports.bench_steps import STOP, print_steps
     return max(rc, print_steps(build, STOP))
