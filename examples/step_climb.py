@@ -29,9 +29,10 @@ PARAMETERS = {"speed_cmd": (SPEED, 0.05, 0.4, "m/s, commanded speed"),
 SUMMARY = {f"{mode}.{q}": f"{what} ({mode})" for mode in MODES for q, what in (
     ("mean_slip", "m/s, mean |wheel slip|"), ("peak_friction_ratio", "largest |Fx|/Fn while Fn > 1 N"),
     ("peak_torque", "N.m, largest |torque|"), ("peak_spin", "rad/s, largest |wheel rate|"),
-    ("x_end", "m, body.x at the end"))}
+    ("x_end", "m, body.x at the end"),
+    ("climbed", "1 if every wheel center is past the bump's end (x0 + 2.5 w) at the end, else 0"))}
 WHEELS = (1, 2, 5, 6)       # in 2D wheels 3, 4 repeat 1, 2
-RECORD = (["body.x"] + [f"wheel[{i}].{q}" for i in WHEELS for q in ("slip", "Fn", "Fx", "omega")] +
+RECORD = (["body.x"] + [f"wheel[{i}].{q}" for i in WHEELS for q in ("slip", "Fn", "Fx", "omega", "cx")] +
           [f"tau[{i}]" for i in WHEELS])
 
 
@@ -40,8 +41,11 @@ def run(out_dir="out/step_climb", build_dir="build", stop_time=None, quiet=False
     from cedra.run.cosim import DriveLoop
     from cedra.run.scenario import fmu, parameters, run_loop, watch_run, write_csv
     from cedra.run.watch import plus_watched
+    from cedra.models.scene import load_shipped
+    from cedra.run.sweep import obstacle_end
     stop_time = stop_time or STOP_TIME
     p = parameters(PARAMETERS, params)
+    goal = obstacle_end("bump", load_shipped(FMUS[0]).inputs)       # the sweeps' goal line for the bump
     out = Path(out_dir)
     runs, summary = {}, {}
     for label, mode in MODES.items():
@@ -62,7 +66,8 @@ def run(out_dir="out/step_climb", build_dir="build", stop_time=None, quiet=False
             peak_friction_ratio=float(ratio.max()), mean_friction_ratio=float(ratio.mean()),
             peak_torque=float(np.max(np.abs([r.column(f"tau[{i}]") for i in WHEELS]))),
             peak_spin=float(np.max(np.abs([r.column(f"wheel[{i}].omega") for i in WHEELS]))),
-            x_end=float(r.column("body.x")[-1]))
+            x_end=float(r.column("body.x")[-1]),
+            climbed=int(min(r.column(f"wheel[{i}].cx")[-1] for i in WHEELS) > goal))
     _plot(out, runs)
     if not quiet:
         for label, s in summary.items():

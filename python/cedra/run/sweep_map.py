@@ -125,7 +125,9 @@ def draw(sw, rows: list[dict]) -> Path:
     if mark:
         handles.append(star)
         labels.append(mark.get("label", "marked"))
-    fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=8)
+    # one row while the labels fit the figure's width (about 16 characters of 8 pt per inch), else two columns
+    fits = sum(len(lb) + 6 for lb in labels) <= 16 * fig.get_figwidth()
+    fig.legend(handles, labels, loc="lower center", ncol=len(handles) if fits else 2, fontsize=8)
     from cedra.run.sweep import actuation
     default_title = f"{sw.name}: {spec['verdict']} ({len(rows)} runs of {sw.target.kind} {sw.target.name})"
     how = actuation(sw)
@@ -133,7 +135,7 @@ def draw(sw, rows: list[dict]) -> Path:
     # wrapped to the figure's width (about 13 characters of 10 pt per inch), the plots below the lines it takes
     lines = [w for line in lines for w in textwrap.wrap(line, int(13 * fig.get_figwidth()))]
     fig.suptitle("\n".join(lines), x=0.02, ha="left", fontsize=10)
-    fig.tight_layout(rect=(0, 0.06, 1, max(0.7, 0.965 - 0.035 * len(lines))))
+    fig.tight_layout(rect=(0, 0.06 if fits else 0.11, 1, max(0.7, 0.965 - 0.035 * len(lines))))
     out = sw.out / f"{sw.name}.png"
     fig.savefig(out, dpi=110)
     plt.close(fig)
