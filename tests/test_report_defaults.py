@@ -50,3 +50,24 @@ def test_the_largest_step_can_be_set(build):
     r = D.compare("flat3d", build, h_max=0.005)
     assert r.ok and r.setting == "rodas4 tol 1e-06 h_max 0.005" and r.tight == "rodas4 tol 1e-9"
     assert r.peak_rel <= D.CRITERION
+
+
+def test_runs_that_stop_at_the_same_point_are_compared_up_to_it(build, monkeypatch):
+    """rubble3d under the main job's loop drives off the heightmap's side at t = 9.25 s in every setting: the same
+    run, compared over the time both have; runs that stop at different points (or one of them) fail the row."""
+    import numpy as np
+    import cedra.run.simulate as sim
+    names = ["time", "wheel[1].Fn", "wheel[2].Fn"]
+    ends = iter([9.25, 9.25, 9.25, 4.0])
+
+    def fake_run(path, t_end, settings):
+        t = next(ends)
+        k = int(round(t / 0.01))
+        rows = np.column_stack([np.arange(k) * 0.01, np.full(k, 50.0), np.full(k, 60.0 + (len(settings) > 2))])
+        return names, rows, None, dict(ok=False, simulated=t, messages=[f"stopped at {t}"])
+    monkeypatch.setattr(sim, "run_bump", fake_run)
+    same = D.compare("flat3d", build)
+    assert same.ok and same.t_end == 9.25 and same.message == "both runs stop there: stopped at 9.25"
+    assert same.peak == 60.0 and same.peak_tight == 61.0
+    apart = D.compare("flat3d", build)
+    assert not apart.ok and apart.message == "default: stopped at 9.25"
