@@ -258,7 +258,8 @@ class CedraModel:
         return c
 
     def _wheel_contact(self, wh) -> dict:
-        """A wheel's contacts, their forces added to Kane's equations, and the wheel's totals in the per-wheel
+        """A wheel's contacts, their forces added to Kane's equations (rigid: symbols the glue's solve fills, added
+        by the glue as W' lambda), and the wheel's totals in the per-wheel
         outputs' meaning (docs/model.md, Several contacts per wheel, item 4): the total force along the frame of n_eff = unit(sum F_n,k n_k)
         (the deepest contact's normal while the wheel carries no force), the point the normal-force-weighted mean
         of the contact points (the deepest point while no force)."""
@@ -639,6 +640,8 @@ class CedraModel:
     def udot(self, q, u, inp, par) -> np.ndarray:
         M = np.array(self._num["cedra_M"](q, par))
         f = np.array(self._num["cedra_f"](q, u, inp, par)[0]).ravel()
+        if self.rigid:
+            raise ValueError("udot: rigid contact's accelerations come from the glue's constrained solve")
         if self.chassis:
             f = f + np.array(self._num["cedra_fc"](q, u, inp, par)).ravel()
         return np.linalg.solve(M, f)
