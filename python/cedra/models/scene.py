@@ -95,13 +95,13 @@ def number(path, key, value, lo=None, hi=None, positive=False, lo_exclusive=Fals
     if not math.isfinite(value):
         fail(path, key, f"must be finite, got {value}", error)
     if positive and value <= 0:
-        fail(path, key, f"must be > 0, got {value:g}", error)
+        fail(path, key, f"must be > 0, got {value}", error)
     if lo is not None and lo_exclusive and value <= lo:
-        fail(path, key, f"must be > {lo:g}, got {value:g}", error)
+        fail(path, key, f"must be > {lo}, got {value}", error)
     if lo is not None and value < lo:
-        fail(path, key, f"must be >= {lo:g}, got {value:g}", error)
+        fail(path, key, f"must be >= {lo}, got {value}", error)
     if hi is not None and value > hi:
-        fail(path, key, f"must be <= {hi:g}, got {value:g}", error)
+        fail(path, key, f"must be <= {hi}, got {value}", error)
     return value
 
 
