@@ -150,8 +150,9 @@ struct model_ws {
     int riwork[RIGID_IWORK(NQ, NC)];
     double xh[NX], fh[NX];
     int i_mu, i_alpha, i_vstick;        /* where mu (input), rigid_alpha and v_stick (parameters) live */
-    int y_mode[N_WHEELS];               /* output slots the contact solution fills: wheel[k].mode, */
-    int y_mean[3 * N_WHEELS];           /* wheel[k].Fx_mean, Fy_mean, Fn_mean (lambda's component order) */
+    /* the output slots the contact solution fills: wheel[k].mode and wheel[k].Fx_mean, Fy_mean, Fn_mean (in
+     * lambda's component order) */
+    int y_mode[N_WHEELS], y_mean[3 * N_WHEELS];
     double impulse[3 * NC];
 };
 

@@ -178,6 +178,8 @@ class ModelSpec:
         }
         if self.contact == "rigid":
             nc = self.n_contacts
+            if not 0 <= 6 * self.contacts_per_wheel <= nc:      # the glue reads the six wheels' contacts first
+                raise ValueError(f"model {self.name}: {self.contacts_per_wheel} contacts per wheel, {nc} contacts")
             expected["cedra_contact"] = ([nq, nq, ni, npar], [(3 * nc, nq), (3 * nc, 1), (3 * nc, 1), (nc, 1)])
             expected["cedra_out"] = ([nq, nq, nz, ni, npar, 3 * nc], [(ny, 1)])
         if self.chassis:
