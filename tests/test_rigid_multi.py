@@ -1,4 +1,4 @@
-"""Rigid contact with several contacts per wheel and chassis contact, through the FMU: a wheel in a step's corner
+"""Rigid contact with several contacts per wheel and chassis contact, through the FMU: a wheel at a steep bump's foot
 carries force at two contacts, the wheels' totals (along n_eff) balance the weight wherever the rover stands still,
 no energy is gained that the motors did not supply; the chassis touching a narrow bump carries the load without
 penetrating it (hung up). The paper's run itself (one maximum per wheel everywhere) is the rest of test_rigid.py."""
@@ -16,12 +16,6 @@ ROOT = Path(__file__).resolve().parents[1]
 WEIGHT = (20 + 1 + 6 * 0.5) * 9.81          # the rover's weight (N): body, fork, six wheels
 WHEELS = range(1, 7)
 PER_WHEEL = ("Fn", "Fx", "psi", "contacts")
-
-
-@pytest.fixture(scope="module")
-def step_fmu(tmp_path_factory):
-    scene = load(ROOT / "examples" / "scenes" / "step2d_rigid.toml")
-    return build_fmu(scene.spec(), tmp_path_factory.mktemp("step2d_rigid"))
 
 
 @pytest.fixture(scope="module")
@@ -57,11 +51,12 @@ def unpaid_energy(r):
     return float(np.max(E - np.minimum.accumulate(E)))
 
 
-def test_step_corner_has_two_contacts_and_the_totals_balance(step_fmu):
-    """The 8 cm step (1.23 R_w, mu 0.8, drives): the bogie's wheel 2 meets the face while on the ground (measured:
-    from t = 5.5 s, 36 N on the face at psi = 75 deg and 10 N on the ground); the rover climbs. Wherever it stands
-    still the wheels' totals carry its weight (measured within 0.05 N of 235 N: the Baumgarte terms' share)."""
-    r = run(step_fmu, 8.0)
+def test_corner_has_two_contacts_and_the_totals_balance(bump_fmu):
+    """A steep bump (w = R_w / 2, h = R_w, mu 0.8, drives): the bogie's wheel 2 meets its flank while on the ground
+    (measured: from t = 6.2 s, 65 N on the flank at psi = 59 deg and 3.5 N on the ground) and the rover stops there.
+    Wherever it stands still the wheels' totals (along n_eff) carry its weight (measured within 0.06 N of 235 N: the
+    Baumgarte terms' share)."""
+    r = run(bump_fmu, 8.0, terrain_w=0.0325, terrain_h=0.065, mu=0.8)
     two = r["wheel[2].contacts"] >= 2
     assert two.any()
     i = np.argmax(two)
@@ -72,9 +67,16 @@ def test_step_corner_has_two_contacts_and_the_totals_balance(step_fmu):
     F = wheel_forces(r)
     assert np.max(np.abs(F[still, 0])) < 1e-3 * WEIGHT
     assert np.max(np.abs(F[still, 1] - WEIGHT)) < 1e-3 * WEIGHT
-    assert r["chassis.clearance"].min() > 0          # the chassis never comes near the step here
+    assert r["chassis.clearance"].min() > 0          # the chassis stays clear of this bump
     assert unpaid_energy(r) < 1e-3
-    assert r["body.x"][-1] > 1.0                      # over the step's edge (at X = 1 m)
+
+
+def test_the_rigid_example_scenes_have_chassis_contact():
+    """the rigid step and stairs maps' scenes (examples/scenes): rigid contact with chassis points and drives"""
+    for name in ("step2d_rigid", "stairs2d_rigid"):
+        scene = load(ROOT / "examples" / "scenes" / f"{name}.toml")
+        assert scene.name == name and scene.solver["method"] == "moreau"
+        assert scene.options.contact == "rigid" and scene.options.chassis and scene.options.drives
 
 
 def test_chassis_hangs_up_on_a_narrow_bump(bump_fmu):
