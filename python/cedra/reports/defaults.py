@@ -108,8 +108,9 @@ def compare(name: str, build="build", tol: float | None = None, method: str | No
 
 def write(rows: list[Row], out: Path, cmd: str, made_by: str = "") -> Path:
     out.mkdir(parents=True, exist_ok=True)
-    table = [[r.scene, f"{r.t_end:g} s" + (" (both stop)" if r.ok and r.message else ""), r.setting, r.tight, r.force, fmt(r.peak, 5), fmt(r.peak_tight, 5),
-              fmt(r.peak_rel), fmt(r.dev_rel), f"{r.cpu:.2f} / {r.cpu_tight:.2f}",
+    table = [[r.scene, f"{r.t_end:g} s" + (" (both stop)" if r.ok and r.message else ""), r.setting, r.tight,
+              r.force, fmt(r.peak, 5), fmt(r.peak_tight, 5), fmt(r.peak_rel), fmt(r.dev_rel),
+              f"{r.cpu:.2f} / {r.cpu_tight:.2f}",
               ("yes" if r.peak_rel <= CRITERION else "NO") if r.ok else f"failed: {r.message[:80]}"] for r in rows]
     md = ["# Default settings against a tight run", ""] + ([made_by, ""] if made_by else []) + [
           f"Command: `{cmd}`. Each scene's FMU, the main job's closed loop, default solver settings vs the tight "

@@ -789,9 +789,8 @@ def main(args) -> int:
     from cedra.reports.common import load_average
     from cedra.run import sweep_report
     load_at_start = load_average()
-    flag, check = next(((f, v) for f, v in (("--check-tol", getattr(args, "check_tol", None)),
-                                           ("--check-h", getattr(args, "check_h", None))) if v is not None),
-                       (None, None))
+    check_h = getattr(args, "check_h", None)         # argparse makes --check-tol and --check-h exclusive
+    flag, check = ("--check-h", check_h) if check_h is not None else ("--check-tol", getattr(args, "check_tol", None))
     try:
         sw = load(resolve(args.file))
         if args.workers is not None and args.workers < 1:
