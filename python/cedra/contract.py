@@ -74,6 +74,7 @@ start values, no solver. Its discrete state xd (d_names) and outputs change only
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -112,6 +113,28 @@ class Quantity:
     min_exclusive: bool = False  # value == min is refused too (XML can only say min; the glue and scenes refuse it)
 
 
+class LazyFunctions(Mapping):
+    """A ModelSpec's functions, formed on first use: forming a 3D scene's CasADi functions takes seconds, and the
+    variable table (the FMU reference, the scene checks) needs none of them."""
+
+    def __init__(self, form: Callable[[], dict]):
+        self._form, self._fns = form, None
+
+    def _all(self) -> dict:
+        if self._fns is None:
+            self._fns = dict(self._form())
+        return self._fns
+
+    def __getitem__(self, name):
+        return self._all()[name]
+
+    def __iter__(self):
+        return iter(self._all())
+
+    def __len__(self):
+        return len(self._all())
+
+
 @dataclass
 class ModelSpec:
     name: str                               # the scene name: modelIdentifier, .so and .fmu name
@@ -124,7 +147,7 @@ class ModelSpec:
     q_start: list[float]                    # default initial coordinates (design pose)
     settle_idx: list[int]                   # coordinates solved for by the static-equilibrium Newton solve
     start_params: dict[str, int] = field(default_factory=dict)   # FMU parameter name -> q index it sets
-    functions: dict[str, ca.Function] = field(default_factory=dict)
+    functions: Mapping[str, ca.Function] = field(default_factory=dict)   # a dict or LazyFunctions
     stop_time: float = 10.0
     output_interval: float = 0.01
     solver: dict = field(default_factory=dict)   # default solver settings: method, tol, h_max

@@ -20,7 +20,7 @@ from cedra.mechanics.contact import (ContactGeometry, compliant_force, compliant
 from cedra.mechanics import rim
 from cedra.mechanics.kane import KaneSystem
 from cedra.rover.mechanism import FULL_Q, IDX, describe, drive_torque
-from cedra.contract import ModelSpec, Quantity
+from cedra.contract import LazyFunctions, ModelSpec, Quantity
 from cedra.mechanics.terrain import STAIRS_STEPS, TERRAIN_INPUTS, Terrain, terrain_inputs
 
 PLANAR_MAP = {"y": None, "yaw": None, "roll": None, "theta2": "theta1", "theta3": None, "theta6": None,
@@ -611,7 +611,7 @@ class CedraModel:
                          q_names=list(self.q_names), z_names=["work"], params=list(self.params),
                          inputs=list(self.inputs), outputs=outs, q_start=q_start, settle_idx=self.settle_idx,
                          start_params={f"start.{n}": k for k, n in enumerate(self.q_names)},
-                         functions=dict(self._num), contact=self.opt.contact,
+                         functions=LazyFunctions(lambda: self._num), contact=self.opt.contact,
                          n_contacts=len(self.rigid_contacts),
                          contacts_per_wheel=len(self.contacts[0]["parts"]) if self.rigid else 0,
                          heightmap_file=self.opt.heightmap,
