@@ -56,10 +56,11 @@ class Wheel:
         self.f = ca.Function("wheel", [c, a, v, k, d, mu] + list(ins.values()), terrain.resolve(outs))
         X, Y = ca.SX.sym("X"), ca.SX.sym("Y")
         self.hf = ca.Function("h", [X, Y] + list(ins.values()), [terrain.height(X, Y), terrain.normal(X, Y)])
+        self._maps, self._reference = {}, {}       # height's map per size; reference_depths per pose
 
     def height(self, X, Y):
         X, Y = np.broadcast_arrays(np.atleast_1d(X), np.atleast_1d(Y))
-        m = self.hf.map(X.size)
+        m = self._maps.get(X.size) or self._maps.setdefault(X.size, self.hf.map(X.size))
         return np.array(m(X.reshape(1, -1), Y.reshape(1, -1), *self.t)[0]).ravel()
 
     def normal(self, X, Y):
@@ -74,8 +75,12 @@ class Wheel:
         return [x for x, p in zip(depth.ravel(), present.ravel()) if p]
 
     def reference_depths(self, center, axle=(0, 1, 0)):
-        return [d for _, _, d in ref.wheel_contacts(self.height, self.normal, np.asarray(center, float),
-                                                    np.asarray(axle, float), R_W)]
+        """The exhaustive search's penetrations (remembered per pose: a test that picks poses by them asks twice)."""
+        key = tuple(np.asarray(center, float)) + tuple(np.asarray(axle, float))
+        if key not in self._reference:
+            self._reference[key] = [d for _, _, d in ref.wheel_contacts(self.height, self.normal, np.asarray(key[:3]),
+                                                                        np.asarray(key[3:]), R_W)]
+        return self._reference[key]
 
 
 def touching(depths):
