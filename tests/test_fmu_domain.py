@@ -2,7 +2,6 @@
 import numpy as np
 
 from cedra.run.driver import RoverFMU
-from cedra.fmu.packaging import build_fmu
 from cedra.models.scene import load_shipped
 from fmu_harness import shipped_fmu
 
@@ -28,14 +27,14 @@ def test_flipping_torque_is_a_loud_discard(tmp_path_factory):
     fmu.close()
 
 
-def test_a_discarded_ros34pw2_step_leaves_the_kept_jacobian_as_it_was(tmp_path):
+def test_a_discarded_ros34pw2_step_leaves_the_kept_jacobian_as_it_was(tmp_path_factory):
     """ros34pw2 keeps its Jacobian in the FMU state (the last field before the checksum). A discarded step
     restores x, and the kept Jacobian with it: the state read after the discard holds the Jacobian of before."""
     from cedra.reports.common import Problem
     scene = load_shipped("bump2d")
     prob = Problem(scene)
     keep_bytes = 8 * (prob.nx * prob.nx + prob.nq * prob.nq)
-    fmu = RoverFMU(build_fmu(scene.spec(), tmp_path))
+    fmu = RoverFMU(shipped_fmu("bump2d", tmp_path_factory))
     fmu.start({"solver.method": 3})
     fmu.set({f"tau[{i}]": 50.0 for i in range(1, 7)})
 
