@@ -19,12 +19,20 @@ def test_the_tight_settings_against_themselves_differ_by_nothing(build):
     assert r.peak == r.peak_tight and r.peak_rel == 0.0 and r.dev_rel == 0.0
 
 
-def test_defaults_and_the_w_method_on_flat_ground(build):
+def _default_setting(name):
+    from cedra.models.scene import load_shipped
+    s = load_shipped(name).solver
+    return f"{s['method']} tol {s['tol']:g}"
+
+
+def test_defaults_and_another_method_on_flat_ground(build):
     d = D.compare("flat3d", build)
-    assert d.ok and d.setting == "rodas4 tol 1e-06"
+    assert d.ok and d.setting == _default_setting("flat3d")
     assert 0 < d.peak_rel <= D.CRITERION and d.peak == pytest.approx(d.peak_tight, rel=1e-5)
-    w = D.compare("flat3d", build, tol=1e-4, method="ros34pw2")
-    assert w.ok and w.setting == "ros34pw2 tol 0.0001"
+    assert D.keeps_guarantee(d)                                      # the scene's default keeps the whole history
+    other = ("rodas4", 1e-6) if d.setting != "rodas4 tol 1e-06" else ("ros34pw2", 1e-4)
+    w = D.compare("flat3d", build, tol=other[1], method=other[0])
+    assert w.ok and w.setting == f"{other[0]} tol {other[1]:g}"
     assert w.peak_rel <= D.CRITERION and w.peak != d.peak          # a different solver ran, and it converged
 
 
@@ -48,7 +56,7 @@ def test_rigid_contact_is_compared_by_its_mean_forces():
 
 def test_the_largest_step_can_be_set(build):
     r = D.compare("flat3d", build, h_max=0.005)
-    assert r.ok and r.setting == "rodas4 tol 1e-06 h_max 0.005" and r.tight == "rodas4 tol 1e-9"
+    assert r.ok and r.setting == _default_setting("flat3d") + " h_max 0.005" and r.tight == "rodas4 tol 1e-9"
     assert r.peak_rel <= D.CRITERION
 
 
@@ -71,3 +79,38 @@ def test_runs_that_stop_at_the_same_point_are_compared_up_to_it(build, monkeypat
     assert same.peak == 60.0 and same.peak_tight == 61.0
     apart = D.compare("flat3d", build)
     assert not apart.ok and apart.message == "default: stopped at 9.25"
+
+
+def _row(setting, cpu, peak_rel=1e-5, dev_rel=1e-4, ok=True):
+    return D.Row("s", 10.0, setting, "rodas4 tol 1e-9", 50.0, 50.0, peak_rel, dev_rel, "Fn", cpu, 1.0, ok)
+
+
+def test_choice_is_the_cheapest_setting_that_keeps_the_whole_history():
+    loose = _row("ros34pw2 tol 0.001", 0.05, dev_rel=2e-3)          # its peak is fine, one sample is not
+    fast = _row("ros34pw2 tol 0.0001", 0.10)
+    tight_as_fast = _row("rodas4 tol 0.0001", 0.108)                 # within the noise of the cheapest: tighter wins
+    slow = _row("rodas4 tol 1e-06", 0.30)
+    failed = _row("rodas4 tol 1e-05", 0.01, ok=False)
+    assert D.pick([loose, fast, slow]) is fast
+    assert D.pick([loose, fast, tight_as_fast, failed, slow]) is tight_as_fast
+    assert D.pick([loose, _row("x", 0.2, peak_rel=2e-3), failed]) is None
+
+
+def test_record_writes_the_choice_into_the_solver_table(tmp_path):
+    from importlib import resources
+    from cedra.models.scene import load, load_shipped
+    path = tmp_path / "flat3d.toml"
+    path.write_text((resources.files("cedra.models.scenes") / "flat3d.toml").read_text())
+    D.record("flat3d", "ros34pw2 tol 0.0001", path)
+    before, after = load_shipped("flat3d"), load(path)
+    assert after.solver == dict(before.solver, method="ros34pw2", tol=1e-4)
+    assert (after.options, after.inputs, after.stop_time) == (before.options, before.inputs, before.stop_time)
+
+
+def test_choose_takes_no_setting_and_record_needs_choose(tmp_path, capsys):
+    base = dict(scene=["flat3d"], build="build", out=str(tmp_path), quiet=True, tol=None, method=None, h_max=None)
+    assert D.main(SimpleNamespace(**base, choose=False, record=True)) == 2
+    assert "--record writes what --choose chose" in capsys.readouterr().err
+    assert D.main(SimpleNamespace(**dict(base, tol=1e-4), choose=True, record=False)) == 2
+    assert "no --tol, --method or --h-max" in capsys.readouterr().err
+    assert not (tmp_path / "defaults-choice.md").exists()

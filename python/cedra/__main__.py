@@ -175,6 +175,10 @@ def main(argv=None):
     r.add_argument("--method", choices=list(SOLVER_METHODS),
                    help="defaults: compare this solver (at the scene's tolerance, or --tol) instead of the defaults")
     r.add_argument("--h-max", type=float, help="defaults: with this solver.h_max (rk4's and moreau's fixed step)")
+    r.add_argument("--choose", action="store_true",
+                   help="defaults: try every candidate setting and name the cheapest that keeps the guarantee")
+    r.add_argument("--record", action="store_true",
+                   help="defaults --choose: write the choice into the shipped scene files' [solver] tables")
     r.add_argument("--figure", action="append", default=None,
                    help="figures: only this figure (repeatable; cedra.reports.figures lists them)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
