@@ -311,3 +311,19 @@ def test_function_sizes():
         print(f"{scene}: build {dt:.3f} s, n_instructions {sizes}")
         assert dt < 30
         assert all(0 < v < 10 ** 6 for v in sizes.values())
+
+
+def test_the_rover_kind_names_the_fixed_coordinates_and_its_2d_reduction():
+    """CEDRA through the rover interface (cedra.mechanics.rover): the fixed pose and spin names are its
+    coordinates, its planar reduction keeps 9 of 17, its stops and steering joints are among them."""
+    from cedra.mechanics.rover import POSE, SPINS
+    from cedra.models.plant import ModelOptions, projection
+    from cedra.models.rovers import ROVERS
+    kind = ROVERS["cedra"]
+    kind.check()
+    assert set(POSE + SPINS) <= set(kind.coordinates) and len(kind.coordinates) == 17
+    assert {s.coordinate for s in kind.stops} | set(kind.steering) <= set(kind.coordinates)
+    assert len(projection(ModelOptions(dims="2d"))[0]) == 9
+    assert len(projection(ModelOptions(dims="3d", steering=True))[0]) == 17
+    with pytest.raises(ValueError, match="unknown rover 'curiosity'"):
+        projection(ModelOptions(rover="curiosity"))

@@ -47,6 +47,8 @@ def test_shipped_scenes_present():
 def test_base_scene_is_valid(tmp_path):
     s = sc.load(write(tmp_path, BASE))
     assert s.options.dims == "3d" and s.options.terrain == "bump" and s.options.steering
+    assert s.options.rover == "cedra"                               # the default rover
+    assert sc.load(write(tmp_path, 'rover = "cedra"\n' + BASE, "named.toml")).options == s.options
     assert s.solver == dict(method="rk4", tol=1e-5, h_max=0.002)
 
 
@@ -79,6 +81,7 @@ BAD = [
      "start.yaw", "not a coordinate"),
     ("solver_unknown", BASE.replace("tol = 1e-5", "tol = 1e-5\norder = 4"), "solver.order", "unknown key"),
     ("missing_name", BASE.replace('name = "t3d"\n', ""), "name", "missing"),
+    ("rover_unknown", 'rover = "curiosity"\n' + BASE, "rover", "must be one of"),
 ]
 
 

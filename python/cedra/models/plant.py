@@ -19,14 +19,12 @@ from cedra.mechanics.contact import (ContactGeometry, compliant_force, compliant
                                      contact_geometry, rim_contacts, slope_angle, terrain_functions)
 from cedra.mechanics import rim
 from cedra.mechanics.kane import KaneSystem
-from cedra.rover.mechanism import FULL_Q, IDX, describe, drive_torque
+from cedra.rover.mechanism import drive_torque
 from cedra.contract import LazyFunctions, ModelSpec, Quantity
+from cedra.mechanics.rover import RoverKind
 from cedra.mechanics.terrain import STAIRS_STEPS, TERRAIN_INPUTS, Terrain, terrain_inputs
+from cedra.models.rovers import ROVERS
 
-PLANAR_MAP = {"y": None, "yaw": None, "roll": None, "theta2": "theta1", "theta3": None, "theta6": None,
-              "gamma3": "gamma1", "gamma4": "gamma2"}
-NO_STEER_MAP = {"theta3": None, "theta6": None}
-SETTLE = ["z", "pitch", "roll", "theta1", "theta2", "theta4"]
 XI_SPEED = 1e-3      # m/s: below it the rotational slip angle xi fades to 0 (its direction is undefined at rest)
 
 
@@ -42,36 +40,48 @@ class ModelOptions:
     stairs_steps: int = STAIRS_STEPS   # terrain "stairs": its number of steps
     chassis: bool = False         # the body's and links' collision points touch the terrain (docs/model.md,
     #                               Chassis and links)
+    rover: str = "cedra"          # which rover (cedra.models.rovers.ROVERS)
+
+
+def rover_kind(opt: ModelOptions) -> RoverKind:
+    if opt.rover not in ROVERS:
+        raise ValueError(f"unknown rover {opt.rover!r} ({', '.join(ROVERS)})")
+    kind = ROVERS[opt.rover]
+    kind.check()
+    return kind
 
 
 def coordinate_map(opt: ModelOptions) -> dict[str, str | None]:
     """For each full coordinate: the scene coordinate it equals, or None for the constant 0."""
+    kind = rover_kind(opt)
     if opt.dims == "2d":
-        m = PLANAR_MAP
+        m = kind.planar
     elif not opt.steering:
-        m = NO_STEER_MAP
+        m = {n: None for n in kind.steering}
     else:
         m = {}
     if opt.locked_wheels:
         m = m | {f"gamma{i}": None for i in range(1, 7)}
-    return {n: m.get(n, n) for n in FULL_Q}
+    return {n: m.get(n, n) for n in kind.coordinates}
 
 
 def projection(opt: ModelOptions) -> tuple[list[str], np.ndarray]:
     """The scene's coordinate names and P with q_full = P q."""
     cmap = coordinate_map(opt)
-    names = [n for n in FULL_Q if cmap[n] == n]
-    P = np.zeros((len(FULL_Q), len(names)))
-    for i, n in enumerate(FULL_Q):
+    full = rover_kind(opt).coordinates
+    names = [n for n in full if cmap[n] == n]
+    P = np.zeros((len(full), len(names)))
+    for i, n in enumerate(full):
         if cmap[n] is not None:
             P[i, names.index(cmap[n])] = 1.0
     return names, P
 
 
 def param_table(opt: ModelOptions) -> list[Quantity]:
-    ps = parameters.ROVER + (parameters.RIGID if opt.contact == "rigid" else parameters.GROUND)
+    kind = rover_kind(opt)
+    ps = kind.parameters + (parameters.RIGID if opt.contact == "rigid" else parameters.GROUND)
     if opt.steering:
-        ps = ps + parameters.SERVO
+        ps = ps + kind.servo_parameters
     if opt.drives:
         ps = ps + parameters.DRIVES
     return ps
@@ -82,9 +92,7 @@ def input_table(opt: ModelOptions) -> list[Quantity]:
         Quantity(f"tau[{i}]", 0.0, "N.m", f"motor torque of wheel {i} (about its axle, positive drives forward)")
         for i in range(1, 7)]
     if opt.steering:
-        lim = parameters.STEER_LIMIT
-        ins += [Quantity("steer[1]", 0.0, "rad", "commanded steering angle of wheel 5 (theta3)", -lim, lim),
-                Quantity("steer[2]", 0.0, "rad", "commanded steering angle of wheel 6 (theta6)", -lim, lim)]
+        ins += rover_kind(opt).steer_inputs
     ins.append(Quantity("mu", 0.8, "1", "friction coefficient wheel-ground", 0.0, 10.0))
     ins += [TERRAIN_INPUTS[n] for n in terrain_inputs(opt.terrain, opt.dims)]
     return ins
@@ -111,6 +119,10 @@ class CedraModel:
             raise ValueError(f"unknown contact model {opt.contact!r} (compliant or rigid)")
         if opt.drives and opt.locked_wheels:
             raise ValueError("drives need spinning wheels (locked_wheels is set)")
+        self.kind = rover_kind(opt)
+        if opt.steering and not self.kind.steering:
+            raise ValueError(f"rover {opt.rover} has no steering joints (it turns by skid steering)")
+        self.idx = self.kind.index
         self.rigid = opt.contact == "rigid"
         self.symbolic_rim = symbolic_rim
         self.opt = opt
@@ -127,8 +139,8 @@ class CedraModel:
         self.p, self.i = p, i_
         self.qf = ca.SX(ca.DM(self.P)) @ self.q
         self.tau = self.applied_torques([i_.get(f"tau[{k}]", 0) for k in range(1, 7)])
-        steer = (i_["steer[1]"], i_["steer[2]"]) if opt.steering else None
-        self.rover = describe(self.qf, self.rate, p, self.tau, steer)
+        steer = tuple(i_[s.name] for s in self.kind.steer_inputs) if opt.steering else None
+        self.rover = self.kind.describe(self.qf, self.rate, p, self.tau, steer)
         self.terrain = Terrain(opt.terrain, {n: i_[n] for n in terrain_inputs(opt.terrain, opt.dims)},
                                opt.heightmap, symbolic_rim, opt.stairs_steps)
         self.kane = KaneSystem(self.q, self.u, list(self.rover.bodies))
@@ -150,7 +162,7 @@ class CedraModel:
         qd = self.rate(self.qf)
         # the work integral is the APPLIED torques' (with drives: after the clip and the gear loss), so
         # K + P - work stays constant up to the contact's and the joints' dissipation
-        self.power = sum(self.tau[k] * qd[IDX[f"gamma{k + 1}"]] for k in range(6))
+        self.power = sum(self.tau[k] * qd[self.idx[f"gamma{k + 1}"]] for k in range(6))
         self.kinetic = 0.5 * ca.dot(self.u, self.M @ self.u)
         self.potential = self.rover.potential
         if not self.rigid:
@@ -208,7 +220,7 @@ class CedraModel:
         force (the twins' together in 2D) the solve's."""
         p, i_ = self.p, self.i
         planar = self.opt.dims == "2d"
-        yaw = self.qf[IDX["yaw"]]
+        yaw = self.qf[self.idx["yaw"]]
         lateral = ca.vertcat(-ca.sin(yaw), ca.cos(yaw), 0)     # the frame's "axle": x = unit(lateral x n), forward
         out = []
         for pt in self.rover.collision_points:
@@ -334,13 +346,13 @@ class CedraModel:
             return tau_cmd
         omega = self.rate(self.qf)
         p = self.p
-        return [drive_torque(tau_cmd[k], omega[IDX[f"gamma{k + 1}"]], p["drive_stall_torque"],
+        return [drive_torque(tau_cmd[k], omega[self.idx[f"gamma{k + 1}"]], p["drive_stall_torque"],
                              p["drive_noload_speed"], p["drive_viscous"]) for k in range(6)]
 
     # ---------------- the contract's functions ----------------
     @cached_property
     def settle_idx(self) -> list[int]:
-        return [self.q_names.index(n) for n in SETTLE if n in self.q_names]
+        return [self.q_names.index(n) for n in self.kind.settle if n in self.q_names]
 
     def outputs(self) -> list[tuple[Quantity, ca.SX]]:
         o, qf, qd = [], self.qf, self.rate(self.qf)
@@ -348,7 +360,8 @@ class CedraModel:
         pose = [("x", "m"), ("y", "m"), ("z", "m"), ("yaw", "rad"), ("pitch", "rad"), ("roll", "rad")]
         for name, unit in pose:
             if not (planar and name in ("y", "yaw", "roll")):
-                o.append((_out(f"body.{name}", unit, f"body pose: {name} (mass center, ZYX Euler)"), qf[IDX[name]]))
+                o.append((_out(f"body.{name}", unit, f"body pose: {name} (mass center, ZYX Euler)"),
+                          qf[self.idx[name]]))
         v, w = self.rover.body_velocity, self.rover.body_omega
         for k, axis in enumerate("xyz"):
             if not (planar and axis == "y"):
@@ -356,22 +369,12 @@ class CedraModel:
         for k, axis in enumerate("xyz"):
             if not (planar and axis in "xz"):
                 o.append((_out(f"body.w{axis}", "rad/s", f"body angular velocity about world {axis.upper()}"), w[k]))
-        o.append((_out("bogie.theta[1]", "rad", "left bogie angle theta1 (positive lifts the front wheel)"),
-                  qf[IDX["theta1"]]))
-        o.append((_out("bogie.theta[2]", "rad", "right bogie angle theta2"), qf[IDX["theta2"]]))
-        o.append((_out("fork.theta4", "rad", "front four-bar lower link angle theta4"), qf[IDX["theta4"]]))
-        o.append((_out("fork.theta5", "rad", "front four-bar coupler angle theta5 (dependent)"), self.rover.theta5))
-        o.append((_out("bogie.rate[1]", "rad/s", "left bogie angle rate thetadot1"), qd[IDX["theta1"]]))
-        o.append((_out("bogie.rate[2]", "rad/s", "right bogie angle rate thetadot2"), qd[IDX["theta2"]]))
-        o.append((_out("fork.rate4", "rad/s", "front four-bar lower link rate thetadot4"), qd[IDX["theta4"]]))
-        if self.opt.steering:
-            o.append((_out("steer.theta[1]", "rad", "steering angle of wheel 5 (theta3)"), qf[IDX["theta3"]]))
-            o.append((_out("steer.theta[2]", "rad", "steering angle of wheel 6 (theta6)"), qf[IDX["theta6"]]))
+        o += self.kind.joint_outputs(qf, qd, self.idx, self.rover, self.opt.steering)
         for wh, c in zip(self.rover.wheels, self.contacts):
             k = wh.index
             geo = c["geo"]
             o += [
-                (_out(f"wheel[{k}].omega", "rad/s", f"wheel {k} spin rate"), qd[IDX[f"gamma{k}"]]),
+                (_out(f"wheel[{k}].omega", "rad/s", f"wheel {k} spin rate"), qd[self.idx[f"gamma{k}"]]),
             ]
             if self.opt.drives:     # without drives it would only repeat the input tau[k]
                 o.append((_out(f"wheel[{k}].tau", "N.m", f"wheel {k} torque applied by its drive (tau[{k}] "
@@ -488,19 +491,19 @@ class CedraModel:
             d = c["depth"]
             s += [d, ca.fmin(p["ground_k"] * d - p["ground_d"] * c["v_n"], p["ground_k"] * d)]
             names += [f"chassis point {j} ({c['link']}) contact", f"chassis point {j} ({c['link']}) normal-force clip"]
-        stops = [("theta1", -p["bogie_stop"], p["bogie_stop"]), ("theta2", -p["bogie_stop"], p["bogie_stop"]),
-                 ("theta4", p["fork_stop_lo"], p["fork_stop_hi"])]
-        for name, lo, hi in stops:
-            if name not in self.q_names:       # 2D: theta2 is theta1
+        for stop in self.kind.stops:
+            name = stop.coordinate
+            if name not in self.q_names:       # 2D: a joint that moves with another (CEDRA's theta2 is theta1)
                 continue
-            a, rate, k, dd = qf[IDX[name]], qd[IDX[name]], p["stop_k"], p["stop_d"]
+            lo, hi = stop.limits(p)
+            a, rate, k, dd = qf[self.idx[name]], qd[self.idx[name]], p["stop_k"], p["stop_d"]
             s += [a - hi, ca.fmax(-k * (a - hi) - dd * rate, k * (hi - a)),
                   a - lo, ca.fmin(-k * (a - lo) - dd * rate, k * (lo - a))]
             names += [f"{name} upper stop", f"{name} upper stop clip", f"{name} lower stop",
                       f"{name} lower stop clip"]
         if self.opt.drives:
             for k in range(6):
-                w = qd[IDX[f"gamma{k + 1}"]]
+                w = qd[self.idx[f"gamma{k + 1}"]]
                 cmd = self.i.get(f"tau[{k + 1}]", 0)
                 T, w0 = p["drive_stall_torque"], p["drive_noload_speed"]
                 s += [T * (1 - w / w0) - cmd, cmd + T * (1 + w / w0)]
@@ -569,7 +572,7 @@ class CedraModel:
         """cedra_check's code (contract.CHECK_REASONS): 1 inside the domain, -1 four-bar toggle, -2 tipped over.
         Beyond 80 deg of pitch or roll the body would be lying on the ground, which the model does not know (and
         3D pitch reaches the ZYX Euler singularity at 90 deg): the FMU stops there loudly instead of grinding."""
-        tilt = ca.fmax(ca.fabs(self.qf[IDX["pitch"]]), ca.fabs(self.qf[IDX["roll"]]))
+        tilt = ca.fmax(ca.fabs(self.qf[self.idx["pitch"]]), ca.fabs(self.qf[self.idx["roll"]]))
         return ca.if_else(ca.fabs(self.rover.closure) >= 1, -1, ca.if_else(tilt > 80 * ca.pi / 180, -2, 1))
 
     def guess(self):
@@ -585,9 +588,9 @@ class CedraModel:
         left = ca.vertcat(-ca.sin(yaw), ca.cos(yaw), 0)
         pitch = ca.atan2(ca.dot(n, fwd), n[2])          # positive pitch = nose down (the terrain descends ahead)
         roll = ca.atan2(-ca.dot(n, left), n[2])
-        height = (p["R_w"] - p["rear_z"]) / ca.cos(pitch) / ca.cos(roll)
-        values = {"z": h + height - 1e-3, "pitch": pitch, "roll": roll, "theta1": 0, "theta2": 0,
-                  "theta4": p["fork_theta4_ref"]}
+        design = self.kind.design(p)
+        height = design["z"] / ca.cos(pitch) / ca.cos(roll)
+        values = {"z": h + height - 1e-3, "pitch": pitch, "roll": roll} | {n: v for n, v in design.items() if n != "z"}
         level = ca.vertcat(*[values[nm] if nm in values else q[k] for k, nm in enumerate(names)])
         if self.terrain.planar:
             return level
@@ -604,9 +607,8 @@ class CedraModel:
             _out("energy.potential", "J",
                  "potential energy: gravity (datum Z = 0), fork spring, stops, servo springs, ground springs"),
             _out("energy.work", "J", self.work_description())]
-        q_start = [0.0] * len(self.q_names)
-        q_start[self.q_names.index("z")] = parameters.DEFAULTS["R_w"] - parameters.DEFAULTS["rear_z"]
-        q_start[self.q_names.index("theta4")] = parameters.DEFAULTS["fork_theta4_ref"]
+        design = self.kind.design({q.name: q.start for q in self.kind.parameters})
+        q_start = [float(design.get(n, 0.0)) for n in self.q_names]
         return ModelSpec(name=name, description=description or f"CEDRA rover, {self.opt}",
                          q_names=list(self.q_names), z_names=["work"], params=list(self.params),
                          inputs=list(self.inputs), outputs=outs, q_start=q_start, settle_idx=self.settle_idx,

@@ -3,6 +3,7 @@ before any code is generated.
 
     name = "bump2d"                 # FMU model identifier: letters, digits, underscore
     description = "..."
+    rover = "cedra"                 # which rover (cedra.models.rovers.ROVERS; default cedra)
     dims = "2d"                     # "2d" (planar, 9 DOF) or "3d" (17 DOF, 15 without steering)
     terrain = "bump"                # flat | slope | bump | bump3d | step | stairs | waves | heightmap
     stairs_steps = 4                # terrain "stairs" only: its number of steps (1..50)
@@ -37,11 +38,12 @@ from pathlib import Path
 
 from cedra.mechanics import heightmap
 from cedra.models.plant import CedraModel, ModelOptions, input_table, param_table, projection
+from cedra.models.rovers import ROVERS
 from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, SOLVER_METHODS, ModelSpec
 from cedra.mechanics.terrain import KINDS, STAIRS_STEPS
 
 SOLVERS = {name: k for k, name in enumerate(SOLVER_METHODS)}
-TOP_KEYS = {"name", "description", "dims", "terrain", "heightmap", "stairs_steps", "contact", "steering", "locked_wheels",
+TOP_KEYS = {"name", "description", "rover", "dims", "terrain", "heightmap", "stairs_steps", "contact", "steering", "locked_wheels",
             "drives", "chassis", "stop_time", "output_interval",
             "solver", "parameters", "inputs", "start"}
 
@@ -149,6 +151,7 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     name = data["name"]
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
         fail(path, "name", f"must be an identifier (letters, digits, underscore), got {name!r}")
+    rover = choice(path, "rover", data.get("rover", "cedra"), set(ROVERS))
     dims = choice(path, "dims", data["dims"], {"2d", "3d"})
     terrain = choice(path, "terrain", data["terrain"], set(KINDS))
     if dims == "2d" and terrain in ("bump3d", "waves", "heightmap"):
@@ -165,6 +168,8 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
         fail(path, "steering", f"expected true or false, got {steering!r}")
     if dims == "2d" and steering:
         fail(path, "steering", "a 2d scene has no steering")
+    if steering and not ROVERS[rover].steering:
+        fail(path, "steering", f"rover '{rover}' has no steering joints (it turns by skid steering)")
     locked = data.get("locked_wheels", False)
     if not isinstance(locked, bool):
         fail(path, "locked_wheels", f"expected true or false, got {locked!r}")
@@ -206,7 +211,7 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     if solver["method"] == "moreau" and contact != "rigid":
         fail(path, "solver.method", "moreau is the rigid contact's own time stepping (contact = \"rigid\")")
     opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked,
-                       heightmap=heightmap_file, drives=drives, stairs_steps=steps, chassis=chassis)
+                       heightmap=heightmap_file, drives=drives, stairs_steps=steps, chassis=chassis, rover=rover)
     scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path))
     for section, table in (("parameters", param_table(opt)), ("inputs", input_table(opt))):
         known = {q.name: q for q in table}

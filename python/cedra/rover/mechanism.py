@@ -2,7 +2,8 @@
 
 This module only *describes* the rover: given its generalized coordinates as expressions (the full 17 of
 the 3D rover, each written in terms of a scene's own reduced coordinates), it returns bodies, wheels and the
-torques acting on coordinates. kane.py forms the equations; model.py chooses the reduced coordinates.
+torques acting on coordinates. `CEDRA` is the rover kind the equations are formed from (cedra.mechanics.rover:
+the interface; cedra.models.plant forms the equations and chooses the reduced coordinates).
 """
 from __future__ import annotations
 
@@ -10,37 +11,17 @@ from dataclasses import dataclass
 
 import casadi as ca
 
+from cedra.contract import Quantity
 from cedra.mechanics.kane import Body
+from cedra.mechanics.rover import CollisionPoint, RoverDescription, RoverKind, Stop, Wheel
 from cedra.mechanics.transforms import apply, e_xz, homogeneous, rot_x, rot_y, rot_z, rotation, translation
+from cedra.rover import parameters
 
 FULL_Q = ["x", "y", "z", "yaw", "pitch", "roll", "theta1", "theta2", "theta4", "theta3", "theta6",
           "gamma1", "gamma2", "gamma3", "gamma4", "gamma5", "gamma6"]
 IDX = {name: i for i, name in enumerate(FULL_Q)}
 EY = ca.DM([0, 1, 0])
 EZ = ca.DM([0, 0, 1])
-
-
-@dataclass
-class Wheel:
-    index: int          # the paper's numbering, 1..6
-    center: ca.SX       # world
-    axle: ca.SX         # world unit vector
-    omega: ca.SX        # world angular velocity of the wheel
-    velocity: ca.SX     # world velocity of the center
-    up: ca.SX           # world unit vector: the contact frame's normal at psi = 0 in the kinematics' convention
-    #                     (kinematics.contact_frame: the carrier's own rotation undone, so psi is measured from R)
-
-
-@dataclass
-class CollisionPoint:
-    """A point of the body or a link that can touch the terrain (docs/model.md, Chassis and links); no mass.
-    position: world, an expression of the coordinates (a material point of its link, so its velocity is the
-    position's time derivative). planar_weight: in 2D, where the terrain is constant in Y, points that differ
-    only in y act as one: the point on the center line (the left bogie's) carries the count of its twins (3 across
-    the body, 2 bogies), the others 0."""
-    link: str
-    position: ca.SX
-    planar_weight: int
 
 
 # the body's box in frame R: its floor and its front and rear faces (docs/model.md, Chassis and links)
@@ -51,16 +32,8 @@ BODY_FACE_Z = [-0.02, 0.03, 0.08]
 
 
 @dataclass
-class RoverDescription:
-    bodies: list[Body]
-    wheels: list[Wheel]
-    coordinate_torques: ca.SX   # torque on each of the 17 full coordinates (joint springs, stops, motors, servo)
-    potential: ca.SX            # gravity (datum Z = 0) + fork spring + stops + servo springs
-    theta5: ca.SX
-    closure: ca.SX              # K/|d| of the four-bar: |closure| < 1 where it can be assembled
-    body_omega: ca.SX
-    body_velocity: ca.SX
-    collision_points: list[CollisionPoint]
+class CedraDescription(RoverDescription):
+    theta5: ca.SX               # the four-bar's coupler angle (dependent: four_bar)
 
 
 def four_bar(theta4, p):
@@ -187,4 +160,54 @@ def describe(qf, rate, p, tau, steer_cmd):
         for name, cmd in (("theta3", steer_cmd[0]), ("theta6", steer_cmd[1])):
             Q[IDX[name]] = -p["steer_k"] * (qf[IDX[name]] - cmd) - p["steer_d"] * d[name]
             V += 0.5 * p["steer_k"] * (qf[IDX[name]] - cmd) ** 2
-    return RoverDescription(bodies, wheels, Q, V, theta5, closure, w_body, rate(ca.vertcat(x, y, z)), points)
+    return CedraDescription(bodies=bodies, wheels=wheels, coordinate_torques=Q, potential=V, closure=closure,
+                            body_omega=w_body, body_velocity=rate(ca.vertcat(x, y, z)), collision_points=points,
+                            theta5=theta5)
+
+
+def design(p) -> dict:
+    """The design pose over flat ground: every wheel center R_w above it (the rear wheel's fixes z), bogies level,
+    the fork at its spring's rest angle."""
+    return {"z": p["R_w"] - p["rear_z"], "theta1": 0, "theta2": 0, "theta4": p["fork_theta4_ref"]}
+
+
+def _out(name, unit, description):
+    return Quantity(name, 0.0, unit, description)
+
+
+def joint_outputs(qf, qd, idx, rover: CedraDescription, steering: bool) -> list:
+    """The FMU outputs of CEDRA's joints: the bogies, the four-bar, the steering."""
+    o = [(_out("bogie.theta[1]", "rad", "left bogie angle theta1 (positive lifts the front wheel)"), qf[idx["theta1"]]),
+         (_out("bogie.theta[2]", "rad", "right bogie angle theta2"), qf[idx["theta2"]]),
+         (_out("fork.theta4", "rad", "front four-bar lower link angle theta4"), qf[idx["theta4"]]),
+         (_out("fork.theta5", "rad", "front four-bar coupler angle theta5 (dependent)"), rover.theta5),
+         (_out("bogie.rate[1]", "rad/s", "left bogie angle rate thetadot1"), qd[idx["theta1"]]),
+         (_out("bogie.rate[2]", "rad/s", "right bogie angle rate thetadot2"), qd[idx["theta2"]]),
+         (_out("fork.rate4", "rad/s", "front four-bar lower link rate thetadot4"), qd[idx["theta4"]])]
+    if steering:
+        o += [(_out("steer.theta[1]", "rad", "steering angle of wheel 5 (theta3)"), qf[idx["theta3"]]),
+              (_out("steer.theta[2]", "rad", "steering angle of wheel 6 (theta6)"), qf[idx["theta6"]])]
+    return o
+
+
+CEDRA = RoverKind(
+    name="cedra",
+    coordinates=tuple(FULL_Q),
+    # 2D: the terrain is constant in Y and the rover symmetric: the bogies move together, wheels 3, 4 spin with
+    # 1, 2, and nothing leaves the plane
+    planar={"y": None, "yaw": None, "roll": None, "theta2": "theta1", "theta3": None, "theta6": None,
+            "gamma3": "gamma1", "gamma4": "gamma2"},
+    steering=("theta3", "theta6"),
+    settle=("z", "pitch", "roll", "theta1", "theta2", "theta4"),
+    parameters=parameters.ROVER,
+    servo_parameters=parameters.SERVO,
+    steer_inputs=[Quantity("steer[1]", 0.0, "rad", "commanded steering angle of wheel 5 (theta3)",
+                           -parameters.STEER_LIMIT, parameters.STEER_LIMIT),
+                  Quantity("steer[2]", 0.0, "rad", "commanded steering angle of wheel 6 (theta6)",
+                           -parameters.STEER_LIMIT, parameters.STEER_LIMIT)],
+    describe=describe,
+    stops=(Stop("theta1", "-bogie_stop", "bogie_stop"), Stop("theta2", "-bogie_stop", "bogie_stop"),
+           Stop("theta4", "fork_stop_lo", "fork_stop_hi")),
+    design=design,
+    joint_outputs=joint_outputs,
+)
