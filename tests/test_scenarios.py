@@ -25,6 +25,7 @@ SHORT = {   # scenario -> (stop time, files it must write; the 3D ones a view.ht
                          "equal_torques_view.html", "inverse_kinematics_view.html", "traction_control_view.html"]),
     "drop": (1.0, ["drop.csv", "drop.png", "view.html"]),
     "rubble": (2.0, ["rubble.csv", "path.png", "view.html"]),
+    "rovers_bump": (2.0, ["rovers.csv", "loads.png"]),
 }
 
 

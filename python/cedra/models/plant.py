@@ -212,6 +212,12 @@ class CedraModel:
     def rate(self, expr):
         return ca.jtimes(expr, self.q, self.u)
 
+    @cached_property
+    def planar_twins(self) -> dict[int, int]:
+        """2D: wheel -> the wheel whose spin it shares (the rover kind's planar map of the spins; CEDRA: 3 -> 1,
+        4 -> 2): the two meet a terrain constant in Y alike."""
+        return {int(a[5:]): int(b[5:]) for a, b in self.kind.planar.items() if a.startswith("gamma") and b}
+
     def _chassis_contacts(self) -> list[dict]:
         """The collision points of the body and links (docs/model.md, Chassis and links): each point below the
         terrain gets the compliant law with delta = g n_Z, the terrain's normal under it and the point's own
@@ -282,9 +288,9 @@ class CedraModel:
         at = ca.SX.sym("p_contact", 3)
         v_at = wh.velocity + ca.cross(wh.omega, at - wh.center)
         if self.multi_contact:
-            # 2D: the terrain is constant in Y and a bogie pair's wheels differ only in y, so wheels 3 and 4
-            # meet it exactly as wheels 1 and 2 do: one search for the pair
-            search = self._searches.get({3: 1, 4: 2}.get(wh.index)) if self.opt.dims == "2d" else None
+            # 2D: the terrain is constant in Y and a wheel and its planar twin differ only in y (CEDRA's 3 and 4
+            # are 1's and 2's), so they meet it exactly alike: one search for the pair
+            search = self._searches.get(self.planar_twins.get(wh.index)) if self.opt.dims == "2d" else None
             if search is None:
                 if self._rim_search is None:
                     self._rim_search = rim.search_external(self.terrain)
@@ -525,7 +531,7 @@ class CedraModel:
             # On rigid ground the pose is fixed by geometry alone: every wheel touches (gap = 0). As many distinct
             # wheels as settle unknowns (2D: wheels 3, 4 coincide with 1, 2); the glue's constrained solve then
             # gives the contact forces.
-            wheels = [1, 2, 5, 6] if self.opt.dims == "2d" else [1, 2, 3, 4, 5, 6]
+            wheels = [k for k in range(1, 7) if self.opt.dims == "3d" or k not in self.planar_twins]
             res = ca.vertcat(*[-self.contacts[k - 1]["geo"].depth for k in wheels])
         else:
             res = ca.substitute(self.f + self.chassis_force, u, ca.DM.zeros(n))[sidx]

@@ -1,5 +1,6 @@
 """The rovers a scene may name (`rover = "..."` in a scene file): each a cedra.mechanics.rover.RoverKind from
-its own package."""
+its own description."""
 from cedra.rover.mechanism import CEDRA
+from cedra.rover.rocker_bogie import ROCKER_BOGIE
 
-ROVERS = {CEDRA.name: CEDRA}
+ROVERS = {kind.name: kind for kind in (CEDRA, ROCKER_BOGIE)}
