@@ -36,6 +36,8 @@ GOOD = 'scene = "bump2d"\nobjective = "energy"\nmargin = 0.4\ninterval = 0.1\n'
     (GOOD + "[solver]\nmax_iter = 2.5\n", "solver.max_iter", "expected an integer"),
     (GOOD + "[solver]\nintegrator_tol = 0.1\n", "solver.integrator_tol", "must be <="),
     (GOOD + "[solver]\nmethod = \"sqp\"\n", "solver.method", "unknown key"),
+    (GOOD + "[solver]\nhessian = \"bfgs\"\n", "solver.hessian", "must be one of"),
+    (GOOD + "[solver]\nthreads = 0\n", "solver.threads", "expected an integer"),
 ])
 def test_bad_problem_names_file_and_key(tmp_path, text, key, reason):
     path = tmp_path / "bad.toml"

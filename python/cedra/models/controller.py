@@ -19,8 +19,11 @@ Every `ctrl.period` (default 0.01 s) it reads the commanded forward speed `cmd.v
     ctrl.mode = 2  traction control: mode 0's speed PI gives the summed torque (6 times its per-wheel torque),
                    distributed over the wheels so that the largest friction ratio |T_i| / N_i is as small as
                    possible under the quasi-static balance at the measured pose (rover.statics): every wheel
-                   gets the same ratio, found by a fixed number of Newton steps (TRACTION_NEWTON_STEPS); a wheel
-                   spinning faster than its Eq. 13 rate by ctrl.spin_margin gets no torque (_spin_guard).
+                   gets the same ratio, found by a fixed number of Newton steps (TRACTION_NEWTON_STEPS); a
+                   torque that has turned its wheel past the wheel's rolling rate (rover.statics.rolling_rates:
+                   the measured body motion, joint rates and contact angles) by ctrl.spin_margin is dropped
+                   (_spin_guard), and a loop (ctrl.roll_kp) holds every wheel at its rolling rate, so a lifted
+                   wheel lands turning as the ground asks.
 In every mode (3D) the steered wheels get the geometric steering angles (Eqs. 14-22) for (cmd.v, cmd.yaw_rate),
 and the outputs ctrl.Fn_est[i] give the balance's normal forces for the commanded torques (no force sensor: the
 pose, the contact angles and the torques only). Every mode is evaluated at every sample and the mode selects
@@ -35,8 +38,9 @@ import casadi as ca
 
 from cedra.rover.kinematics import KIN_PARAMS, drive_expressions, drive_symbols
 from cedra.rover.parameters import DEFAULTS, ROVER, STEER_LIMIT
+from cedra.mechanics.transforms import rot_z
 from cedra.rover.statics import GROUPS, PAIR, STATICS_PARAMS, balance, equal_ratio_tractions, \
-    loads_given_tractions, multiplicity
+    loads_given_tractions, multiplicity, rolling_rates
 from cedra.contract import ModelSpec, Quantity
 
 WHEELS = range(1, 7)
@@ -77,8 +81,12 @@ def params() -> list[Quantity]:
                  0.0),
         Quantity("ctrl.trim_ki", 2.0, "1/s", "inverse-kinematics mode: integral gain of the speed and yaw-rate "
                  "trims (0: Eq. 13 open loop)", 0.0),
-        Quantity("ctrl.spin_margin", 5.0, "rad/s", "traction mode: a wheel spinning faster than its Eq. 13 rate by "
-                 "more than this gets no torque (its torque fades out linearly over this margin)", 1e-3),
+        Quantity("ctrl.spin_margin", 10.0, "rad/s", "traction mode: a torque that has turned its wheel past the "
+                 "wheel's rolling rate by more than this is dropped (it fades out linearly over this margin)", 1e-3),
+        # a wheel in the air has only its own spin inertia J = m_w R_w^2 / 2 (1.06e-3 kg.m^2): Kp T / J = 0.95
+        # at T = 0.01 s, so a lifted wheel is back at its rolling rate within about one sample (stable below 2)
+        Quantity("ctrl.roll_kp", 0.1, "N.m.s/rad", "traction mode: gain of the loop that holds every wheel at its "
+                 "rolling rate (what keeps a lifted wheel ready to land)", 0.0),
     ] + _geometry_params()
 
 
@@ -92,6 +100,11 @@ def inputs(dims: str) -> list[Quantity]:
         ins += [Quantity("body.vy", 0.0, "m/s", "measured: body velocity along world Y"),
                 Quantity("body.yaw", 0.0, "rad", "measured: body yaw"),
                 Quantity("body.wz", 0.0, "rad/s", "measured: body yaw rate (angular velocity about world Z)")]
+    # the rest of the body's motion (an IMU's): the traction mode's rolling rates (rover.statics.rolling_rates)
+    ins.append(Quantity("body.vz", 0.0, "m/s", "measured: body velocity along world Z"))
+    if three:
+        ins.append(Quantity("body.wx", 0.0, "rad/s", "measured: body angular velocity about world X"))
+    ins.append(Quantity("body.wy", 0.0, "rad/s", "measured: body angular velocity about world Y"))
     ins.append(Quantity("body.pitch", 0.0, "rad", "measured: body pitch (positive nose down)"))
     if three:
         ins.append(Quantity("body.roll", 0.0, "rad", "measured: body roll"))
@@ -170,15 +183,45 @@ def _traction_torques(dims, loads, p, demand):
     return [ca.fmin(ca.fmax(p["R_w"] * ratio * ca.fmax(normal[_group(dims, k)], 0), -lim), lim) for k in WHEELS]
 
 
-def _spin_guard(tau, omega, omega_ref, margin):
-    """tau, faded out where it would spin the wheel up beyond its Eq. 13 rate: full while the wheel turns no faster
-    than that rate, none from margin faster on, linear between; a torque against the spin (braking) is never
-    touched. The balance cannot see a wheel that has left the ground (it gives it a load from the pose), and a
-    torque on a wheel in the air only spins it up: without this a stalled climb (3 R_w at mu 0.4, no drives) spun
-    a wheel to 29,000 rad/s."""
-    excess = ca.fabs(omega) - ca.fabs(omega_ref)
-    fade = ca.fmin(1, ca.fmax(0, 1 - excess / margin))
-    return ca.if_else(tau * omega > 0, fade * tau, tau)
+def _spin_guard(tau, omega, rolling, margin):
+    """tau, faded out where it has already turned the wheel past its rolling rate in its own direction: full while
+    the wheel is within that rate, none from margin past it on, linear between; a torque that turns the wheel back
+    towards its rolling rate is never touched. The balance cannot see a wheel that has left the ground (it gives it
+    a load from the pose), and a torque on a wheel in the air only spins it, up or backwards: without this a
+    stalled climb (3 R_w at mu 0.4, no drives) spun a wheel to 29,000 rad/s, and a braking torque on a lifted wheel
+    spun it backwards until it landed sliding."""
+    excess = ca.sign(tau) * (omega - rolling)
+    return tau * ca.fmin(1, ca.fmax(0, 1 - excess / margin))
+
+
+def _rolling(dims, i, p):
+    """The rolling rate of every wheel for the measured body motion, joint rates and contact angles."""
+    three = dims == "3d"
+    yaw = i["body.yaw"] if three else 0
+    turn = rot_z(-yaw)                  # world axes -> the heading's, where the balance takes the pose
+    velocity = turn @ ca.vertcat(i["body.vx"], i["body.vy"] if three else 0, i["body.vz"])
+    omega = turn @ ca.vertcat(i["body.wx"] if three else 0, i["body.wy"], i["body.wz"] if three else 0)
+    return rolling_rates(dims, i["body.pitch"], i["body.roll"] if three else 0,
+                         ca.vertcat(i["bogie.theta[1]"], i["bogie.theta[2]"], i["fork.theta4"]),
+                         ca.vertcat(i["steer.theta[1]"], i["steer.theta[2]"]) if three else ca.DM.zeros(2),
+                         ca.vertcat(*[i[f"wheel[{k}].psi_R"] for k in WHEELS]),
+                         ca.vertcat(*[p[n] for n in STATICS_PARAMS]), velocity, omega,
+                         ca.vertcat(i["bogie.rate[1]"], i["bogie.rate[2]"], i["fork.rate4"]))
+
+
+def _traction_control(dims, i, p, loads, demand):
+    """Mode 2's torques: the equal-ratio distribution of `demand` (spin-guarded) plus a proportional loop on
+    every wheel's rolling rate. A wheel on the ground turns at its rolling rate up to its small slip, so the loop
+    adds little there; a wheel the balance loads but the ground does not (lifted, or about to land) has nothing
+    else to hold it, and it lands turning at the rate the ground asks for instead of sliding."""
+    rolling = _rolling(dims, i, p)
+    lim = p["ctrl.tau_max"]
+    out = []
+    for k, t in enumerate(_traction_torques(dims, loads, p, demand)):
+        omega = i[f"wheel[{k + 1}].omega"]
+        hold = p["ctrl.roll_kp"] * (rolling[k] - omega)
+        out.append(ca.fmin(ca.fmax(_spin_guard(t, omega, rolling[k], p["ctrl.spin_margin"]) + hold, -lim), lim))
+    return out
 
 
 def _estimate(dims, loads, p, tau):
@@ -233,8 +276,7 @@ def sample_function(dims: str) -> ca.Function:
           for k in range(6)]
     mode = p["ctrl.mode"]
     loads = _loads(dims, i, p)
-    traction_tau = [_spin_guard(t, i[f"wheel[{k + 1}].omega"], rates[k], p["ctrl.spin_margin"])
-                    for k, t in enumerate(_traction_torques(dims, loads, p, 6 * speed_tau))]
+    traction_tau = _traction_control(dims, i, p, loads, 6 * speed_tau)
     tau = [_by_mode(mode, speed_tau, ik[k][0], traction_tau[k]) for k in range(6)]
     xd_next = ca.vertcat(_by_mode(mode, speed_int, xd[0], speed_int),
                          *[_by_mode(mode, xd[1 + k], ik[k][1], xd[1 + k]) for k in range(6)],

@@ -2,7 +2,7 @@
 inverse kinematics (mode 1) and traction control (mode 2), the controller's normal-force estimate against the
 plant's wheel[i].Fn, and what a controller sample costs.
 
-    python -m cedra.reports.traction [--build build] [--out docs] [--plant bump2d]
+    python -m cedra.reports.traction [--build build] [--out docs] [--plant bump2d] [--speed 0.2] [--period 0.01]
 
 Writes <out>/traction_<plant>.png (friction ratios and torques), <out>/traction_estimate_<plant>.png (estimate
 against the plant's normal force per wheel, and the error) and prints the numbers the docs quote.
@@ -25,15 +25,17 @@ SPEED, STOP_TIME, STEP = 0.2, 15.0, 0.01
 LOADED = 1.0                   # N: a wheel's friction ratio counts while the plant's Fn exceeds this
 
 
-def run_modes(build_dir="build", plant="bump2d"):
-    """The bump run in each mode; every plant output the controller reads is recorded (for the cost replay)."""
+def run_modes(build_dir="build", plant="bump2d", speed=SPEED, period=STEP):
+    """The bump run in each mode at the commanded speed, the controller sampled and the loop stepped every
+    `period`; every plant output the controller reads is recorded (for the cost replay)."""
     runs = {}
     for mode in MODES:
-        loop = DriveLoop(fmu(plant, build_dir), fmu("drive2d", build_dir), controller_values={"ctrl.mode": mode})
+        loop = DriveLoop(fmu(plant, build_dir), fmu("drive2d", build_dir),
+                         controller_values={"ctrl.mode": mode, "ctrl.period": period})
         record = sorted(set(loop.measured) | {f"wheel[{i}].{q}" for i in WHEELS for q in ("Fn", "Fx")} |
                         {f"ctrl.Fn_est[{i}]" for i in WHEELS} | {f"tau[{i}]" for i in WHEELS} | {"body.x"})
         try:
-            runs[mode] = loop.run(STOP_TIME, STEP, lambda t: {"cmd.v": SPEED}, record=record)
+            runs[mode] = loop.run(STOP_TIME, period, lambda t: {"cmd.v": speed}, record=record)
         finally:
             loop.close()
         if not runs[mode].ok:
@@ -53,7 +55,9 @@ def summary(r) -> dict:
     fn = np.array([r.column(f"wheel[{i}].Fn") for i in WHEELS])
     est = np.array([r.column(f"ctrl.Fn_est[{i}]") for i in WHEELS])
     err = est - fn
-    return dict(peak_ratio=float(np.nanmax(ratio)), q99_ratio=float(np.nanquantile(ratio, 0.99)),
+    k, j = np.unravel_index(np.nanargmax(ratio), ratio.shape)
+    peak_at = f"wheel {WHEELS[k]} at t = {r.column('time')[j]:.2f} s, Fn {fn[k, j]:.1f} N"
+    return dict(peak_ratio=float(np.nanmax(ratio)), peak_at=peak_at, q99_ratio=float(np.nanquantile(ratio, 0.99)),
                 mean_ratio=float(np.nanmean(ratio)), at_limit=int(np.sum(ratio > 0.79)),
                 x_end=float(r.column("body.x")[-1]),
                 peak_tau=float(np.max(np.abs([r.column(f"tau[{i}]") for i in WHEELS]))),
@@ -62,14 +66,14 @@ def summary(r) -> dict:
                 est_median_rel=float(np.median(np.abs(err)[fn > 10] / fn[fn > 10])))
 
 
-def sample_cost(r, build_dir="build", mode=2, repeat=3) -> dict:
+def sample_cost(r, build_dir="build", mode=2, repeat=3, speed=SPEED, period=STEP) -> dict:
     """Wall time of one controller fmi2DoStep (one sample) replaying the run's measurements through FMPy: the
     generated function plus FMPy's call overhead, so an upper bound of the C's own cost."""
     ctrl = RoverFMU(fmu("drive2d", build_dir), "controller")
     names = [n for n in r.names[1:] if ctrl.has(n) and ctrl.vars[n].causality == "input"]
     ctrl.fmu.instantiate(callbacks=ctrl._callbacks)
     ctrl.fmu.setupExperiment(startTime=0.0)
-    ctrl.set({"ctrl.mode": mode, "cmd.v": SPEED})
+    ctrl.set({"ctrl.mode": mode, "ctrl.period": period, "cmd.v": speed})
     ctrl.fmu.enterInitializationMode()
     ctrl.fmu.exitInitializationMode()
     refs = [ctrl.vars[n].valueReference for n in names]
@@ -80,9 +84,9 @@ def sample_cost(r, build_dir="build", mode=2, repeat=3) -> dict:
         for row in values:
             ctrl.fmu.setReal(refs, list(row))
             start = time.perf_counter()
-            ctrl.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=STEP)
+            ctrl.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=period)
             times.append(time.perf_counter() - start)
-            t += STEP
+            t += period
     ctrl.close()
     times = np.array(times) * 1e6
     return dict(median_us=float(np.median(times)), p999_us=float(np.quantile(times, 0.999)),
@@ -134,20 +138,22 @@ def main(argv=None):
     ap.add_argument("--build", default="build")
     ap.add_argument("--out", default="docs")
     ap.add_argument("--plant", default="bump2d", help="a 2D plant scene with the bump (bump2d, bump2d_drives)")
+    ap.add_argument("--speed", type=float, default=SPEED, help="commanded speed cmd.v, m/s")
+    ap.add_argument("--period", type=float, default=STEP, help="controller sample period and the loop's step, s")
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    runs = run_modes(a.build, a.plant)
+    runs = run_modes(a.build, a.plant, a.speed, a.period)
     for mode, r in runs.items():
         s = summary(r)
-        print(f"{a.plant}, {MODES[mode]}: peak |Fx|/Fn {s['peak_ratio']:.3f}, 99th percentile {s['q99_ratio']:.3f}, "
+        print(f"{a.plant} at {a.speed:g} m/s, {MODES[mode]}: peak |Fx|/Fn {s['peak_ratio']:.3f} ({s['peak_at']}), 99th percentile {s['q99_ratio']:.3f}, "
               f"mean {s['mean_ratio']:.3f}, samples x wheels above 0.79: {s['at_limit']}, peak torque "
               f"{s['peak_tau']:.2f} N.m, body.x {s['x_end']:.3f} m")
         print("    normal-force estimate - plant, per wheel " + ", ".join(
             f"{i}: mean |e| {m:.1f} N, max |e| {x:.1f} N" for i, m, x in
             zip(WHEELS, s["est_mean_abs"], s["est_max_abs"])) + f"; median relative error {s['est_median_rel']:.3f}")
     for mode in MODES:
-        c = sample_cost(runs[mode], a.build, mode)
+        c = sample_cost(runs[mode], a.build, mode, speed=a.speed, period=a.period)
         print(f"controller sample, mode {mode} (fmi2DoStep through FMPy, {c['samples']} samples): median "
               f"{c['median_us']:.1f} us, 99.9 % {c['p999_us']:.1f} us, max {c['max_us']:.1f} us")
     plot(runs, out, a.plant)

@@ -166,3 +166,57 @@ def traction_function(dims: str, iterations: int) -> ca.Function:
     T, ratio, N = equal_ratio_tractions(N0, B, weights, demand, iterations)
     return ca.Function(f"traction{dims}", args + [demand], [T, ratio, N, N0, B],
                        ["pitch", "roll", "theta", "steer", "psi", "par", "demand"], ["T", "s", "N", "N0", "B"])
+
+
+@lru_cache(maxsize=None)
+def _rolling_function(dims: str) -> ca.Function:
+    """(pitch, roll, theta, steer, psi, par, velocity, omega, theta_dot) -> the six wheels' rolling rates."""
+    s = pose_symbols(dims)
+    velocity, omega, theta_dot = ca.SX.sym("velocity", 3), ca.SX.sym("omega", 3), ca.SX.sym("theta_dot", 3)
+    p = dict(DEFAULTS)
+    p.update({n: s["par"][k] for k, n in enumerate(STATICS_PARAMS)})
+    q, qd = ca.SX.sym("q", len(FULL_Q)), ca.SX.sym("qd", len(FULL_Q))
+    rover = describe(q, lambda e: ca.jtimes(e, q, qd), p, ca.SX.zeros(6), None)
+    R = rot_z(q[IDX["yaw"]]) @ rot_y(q[IDX["pitch"]]) @ rot_x(q[IDX["roll"]])
+    joints = ca.vertcat(*(q[IDX[n]] for n in ("theta1", "theta2", "theta4", "theta3", "theta6")))
+    spins = [IDX[f"gamma{i}"] for i in range(1, 7)]
+    rates = []
+    for wheel in rover.wheels:
+        frame = R @ contact_frame(wheel.index, joints, s["psi"][wheel.index - 1], p)[0:3, 0:3]
+        point = wheel.center - p["R_w"] * frame[:, 2]
+        # the rim point at the contact slides along x_C at this speed: affine in the wheel's own spin rate
+        sliding = ca.dot(wheel.velocity + ca.cross(wheel.omega, point - wheel.center), frame[:, 0])
+        spin = qd[spins[wheel.index - 1]]
+        rates.append(-ca.substitute(sliding, spin, 0) / ca.jacobian(sliding, spin))
+    rates = ca.substitute(ca.vertcat(*rates), qd[spins], ca.DM.zeros(6))
+    # the measured angular velocity gives the Euler rates: body_omega is linear in them
+    euler = [IDX[n] for n in ("yaw", "pitch", "roll")]
+    euler_rates = ca.solve(ca.jacobian(rover.body_omega, qd[euler]), omega)
+    rate_values = ca.SX.zeros(len(FULL_Q))
+    for k, n in enumerate(("x", "y", "z")):
+        rate_values[IDX[n]] = velocity[k]
+    for k, n in enumerate(euler):
+        rate_values[n] = euler_rates[k]
+    rate_values[IDX["theta1"]] = theta_dot[0]
+    rate_values[IDX["theta2"]] = theta_dot[1] if dims == "3d" else theta_dot[0]
+    rate_values[IDX["theta4"]] = theta_dot[2]
+    pose = ca.SX.zeros(len(FULL_Q))
+    pose[IDX["pitch"]] = s["pitch"]
+    pose[IDX["roll"]] = s["roll"] if dims == "3d" else 0
+    for n, v in (("theta1", s["theta"][0]), ("theta2", s["theta"][1] if dims == "3d" else s["theta"][0]),
+                 ("theta4", s["theta"][2]), ("theta3", s["steer"][0] if dims == "3d" else 0),
+                 ("theta6", s["steer"][1] if dims == "3d" else 0)):
+        pose[IDX[n]] = v
+    rates = ca.substitute([ca.substitute(rates, qd, rate_values)], [q], [pose])[0]
+    names = ["pitch", "roll", "theta", "steer", "psi", "par", "velocity", "omega", "theta_dot"]
+    return ca.Function(f"rolling{dims}", [s[k] for k in names[:6]] + [velocity, omega, theta_dot], [rates],
+                       names, ["rates"])
+
+
+def rolling_rates(dims: str, pitch, roll, theta, steer, psi, par, velocity, omega, theta_dot):
+    """The spin rate at which each wheel's rim point at its contact (contact angle psi_i) does not slide along
+    the contact tangent x_C, given the measured motion: the body's mass-center velocity and angular velocity
+    (world axes turned by the measured yaw: the pose is taken at yaw = 0) and the joint rates theta_dot (steering
+    rates taken as zero, as in the kinematics). A wheel in contact turns at this rate up to its slip; a wheel in
+    the air must turn at it when it lands or it lands sliding. CasADi in, CasADi out."""
+    return _rolling_function(dims)(pitch, roll, theta, steer, psi, par, velocity, omega, theta_dot)

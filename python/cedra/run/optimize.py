@@ -3,8 +3,8 @@
 The wheel torques over time that take the planar rover over an obstacle at the least cost, on the very equations
 the scene's FMU integrates (cedra_M, the forces f, the compliant contact and its contact search), solved by IPOPT
 through CasADi's nlpsol. Then the optimal torques are replayed open loop through the scene's FMU, and the report
-compares the optimum with the drive controller's two modes (equal torques, inverse kinematics) on the same
-measures, from the same FMU runs.
+compares the optimum with the drive controller's three modes (equal torques, inverse kinematics, traction control)
+on the same measures, from the same FMU runs.
 
 Method: direct multiple shooting. The contact is stiff (a slipping wheel's spin relaxes at ~1e4 1/s: the friction
 law's slope mu Fn / v_eps on the wheel's own small inertia), so a transcription has to integrate it with an
@@ -17,8 +17,20 @@ The equations: the ODE [u; M^-1 f] formed from the model's own symbolic M and f 
 cedra_fc where the scene has chassis contact), generated to C with its Jacobian and compiled once per model (cached
 under build/host/), as the FMU is. The contact search (cedra_rim_search, the FMU's C search) makes discrete choices
 and returns converged angles: the model never differentiates it (cedra.mechanics.contact.rim_contacts), and
-neither does the optimizer (casadi.stop_diff on its results). Second derivatives are not formed: IPOPT runs with a
-limited-memory Hessian, and CVODES' sensitivity Newton iteration with the first-order Jacobian.
+neither does the optimizer (casadi.stop_diff on its results). Second derivatives of the equations are not formed:
+IPOPT's Hessian of the Lagrangian is the objective's own (exact for the energy, a sum of squares of the torques)
+without the shooting constraints' curvature, a generalized Gauss-Newton method (`solver.hessian = "objective"`,
+the default; "limited-memory" is IPOPT's quasi-Newton approximation), and CVODES' sensitivity Newton iteration
+uses the first-order Jacobian. The wheels' spin angles enter no force, so the shooting state leaves them out (14
+of the model's 18 states), and with a fixed horizon the interval's length is a constant, not a parameter the
+sensitivities are taken for.
+
+Initial guess (`guess`): a drive controller's run from the same start, its states at the grid nodes and its mean
+torques per interval. The equal-torque and inverse-kinematics controllers sample every 0.01 s, so their torques
+vary within an interval and the guess's shooting defects are large (up to 100 rad/s in the wheel rates on the
+bump at 0.2 s intervals); "traction_control" samples the traction controller once per interval (its rolling-rate
+hold's gain scaled to the period), so its torques are piecewise constant on the grid and the guess is a point of
+the shooting problem up to the integrators' tolerances (defects 1e-4 on the bump at 0.1 s intervals).
 
 Decisions: one torque per wheel pair and interval, piecewise constant. The planar model's wheels 3 and 4 share the
 spin coordinates of wheels 1 and 2 (the left and right bogie wheels roll on the same profile), so tau[1] + tau[3]
@@ -49,7 +61,8 @@ Problem files (TOML), checked before anything runs, each error naming the file, 
     horizon = 6.0                   # s (time: the initial guess); default: the guess run's arrival, rounded up
     torque_max = 6.0                # N.m (default: drive_stall_torque)
     start_x = 0.0                   # m (default: the scene's start)
-    guess = "inverse_kinematics"    # the controller run that starts the optimizer: inverse_kinematics | equal_torques
+    guess = "inverse_kinematics"    # the controller run that starts the optimizer: inverse_kinematics |
+                                    # equal_torques | traction_control (sampled on the grid)
     speed = 0.2                     # m/s: the controllers' commanded speed
     regularization = 1e-3           # weight of energy added to peak_friction and time
     [inputs]                        # the scene's inputs for this problem (terrain_h, mu, ...; not the torques)
@@ -57,6 +70,11 @@ Problem files (TOML), checked before anything runs, each error naming the file, 
     max_iter = 200                  # IPOPT iterations
     tol = 1e-6                      # IPOPT tolerance
     integrator_tol = 1e-8           # CVODES abstol = reltol of the shooting integrator
+    threads = 1                     # the shooting intervals integrated on this many threads (CasADi map)
+    hessian = "objective"           # objective: the objective's own Hessian (generalized Gauss-Newton) |
+                                    # limited-memory: IPOPT's quasi-Newton approximation
+    proximal = 0.0                  # hessian = "objective": this times the identity on the node states added
+                                    # (shorter steps where the contact makes the linearization poor)
 """
 from __future__ import annotations
 
@@ -74,7 +92,7 @@ from cedra.models.scene import SceneError, choice, fail, load_shipped, number, r
 from cedra.rover.parameters import DEFAULTS
 
 OBJECTIVES = ("energy", "peak_friction", "time")
-GUESSES = {"equal_torques": 0, "inverse_kinematics": 1}     # ctrl.mode of the drive controller
+GUESSES = {"equal_torques": 0, "inverse_kinematics": 1, "traction_control": 2}     # ctrl.mode of the drive controller
 REPLAY_STEP = 0.01           # s: the FMU replay's communication step (the controllers' runs use it too)
 PAIRS = (0, 1, 0, 1, 2, 3)   # tau[1..6] from the four decisions (wheel pairs 1/3, 2/4, then 5, 6)
 WHEELS = (1, 2, 5, 6)        # the planar model's distinct wheels (3, 4 repeat 1, 2)
@@ -84,7 +102,8 @@ ARRIVAL_TOL = 1e-4           # m: the goal counts as reached this close (the opt
 FN_MIN = 1.0                 # N: a wheel counts in the friction ratio while it carries more than this
 TOP_KEYS = {"name", "scene", "objective", "margin", "interval", "horizon", "torque_max", "start_x", "guess", "speed",
             "regularization", "inputs", "solver"}
-SOLVER_KEYS = {"max_iter", "tol", "integrator_tol"}
+SOLVER_KEYS = {"max_iter", "tol", "integrator_tol", "threads", "hessian", "proximal"}
+HESSIANS = ("objective", "limited-memory")
 
 
 class ProblemError(ValueError):
@@ -108,6 +127,9 @@ class Problem:
     max_iter: int = 200
     tol: float = 1e-6
     integrator_tol: float = 1e-8
+    threads: int = 1
+    hessian: str = "objective"
+    proximal: float = 0.0
     path: str = ""
 
 
@@ -176,6 +198,14 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
             problem.tol = _number(path, k, value, 1e-12, 1e-2)
         elif key == "integrator_tol":
             problem.integrator_tol = _number(path, k, value, 1e-14, 1e-4)
+        elif key == "hessian":
+            problem.hessian = _choice(path, k, value, HESSIANS)
+        elif key == "proximal":
+            problem.proximal = _number(path, k, value, 0.0, 1e3)
+        elif key == "threads":
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:
+                _fail(path, k, f"expected an integer in 1..64, got {value!r}")
+            problem.threads = value
         else:
             _fail(path, k, f"unknown key (known: {', '.join(sorted(SOLVER_KEYS))})")
     return problem
@@ -230,6 +260,14 @@ class Dynamics:
         self.inp = m.default_inp(**(self.scene.inputs | problem.inputs))
         self.nq = m.q.numel()
         self.nx = 2 * self.nq
+        # the wheels' spin angles enter no force (a round wheel): the shooting state leaves them out, which spares
+        # their sensitivities; full() puts zeros in their place for the equations
+        self.kept = [k for k, n in enumerate(m.q_names) if not n.startswith("gamma")] + \
+            list(range(self.nq, self.nx))
+        self.nr = len(self.kept)
+        self.select = ca.DM.zeros(self.nx, self.nr)
+        for j, k in enumerate(self.kept):
+            self.select[k, j] = 1
         frozen = ca.vertcat(*[s for s, _ in m._frozen]) if m._frozen else ca.SX(0, 1)
         searched = ca.vertcat(*[e for _, e in m._frozen]) if m._frozen else ca.SX(0, 1)
         x = ca.vertcat(m.q, m.u)
@@ -248,6 +286,14 @@ class Dynamics:
         self.forces_sx = ca.Function("opt_forces", [x, m.inp, m.par, frozen],
                                      [ca.vertcat(*[a for a, _ in forces]), ca.vertcat(*[b for _, b in forces])])
 
+    def full(self, xr):
+        """The model state [q; u] of a shooting state (the spin angles set to zero)."""
+        return ca.mtimes(self.select, xr)
+
+    def reduced(self, x) -> np.ndarray:
+        """The shooting state of model states (columns)."""
+        return np.asarray(x)[self.kept]
+
     def inputs(self, tau4):
         """The scene's input vector with the four torque decisions put in as tau[1..6]."""
         rest = ca.DM(self.inp[6:])
@@ -262,17 +308,21 @@ class Dynamics:
         # second derivatives are declared zero: the compiled library holds first derivatives only
         return ca.stop_diff(self.ode_c(x, inp, ca.DM(self.par), self._searched(x, inp)), 2)
 
-    def forces(self, x):
-        """(Fn, Fx) of wheels 1, 2, 5, 6 at state x (the FMU's wheel[i].Fn, wheel[i].Fx)."""
+    def forces(self, xr):
+        """(Fn, Fx) of wheels 1, 2, 5, 6 at shooting state xr (the FMU's wheel[i].Fn, wheel[i].Fx)."""
+        x = self.full(xr)
         inp = self.inputs([0, 0, 0, 0])
         return self.forces_sx(x, inp, ca.DM(self.par), self._searched(x, inp))
 
-    def integrator(self, tol: float, n_out: int = 1) -> ca.Function:
-        """x(1) from x(0) under dx/ds = dt ode(x, tau4), p = [tau4; dt]: one interval of length dt (a decision
-        for the time objective); n_out > 1: the states at n_out equally spaced points of the interval."""
-        x, p = ca.MX.sym("x", self.nx), ca.MX.sym("p", 5)
+    def integrator(self, tol: float, n_out: int = 1, dt: float | None = None) -> ca.Function:
+        """The shooting state at the end of one interval under dx/ds = dt ode(x, tau4) from x(0), p = [tau4; dt]
+        (the time objective: dt is a decision) or p = tau4 with the interval's length fixed at `dt` (no
+        sensitivity to it); n_out > 1: the states at n_out equally spaced points of the interval."""
+        x, p = ca.MX.sym("x", self.nr), ca.MX.sym("p", 5 if dt is None else 4)
+        length = p[4] if dt is None else dt
         grid = list(np.linspace(0, 1, n_out + 1)[1:])
-        return ca.integrator("shoot", "cvodes", {"x": x, "p": p, "ode": p[4] * self.ode(x, p[:4])}, 0, grid,
+        ode = length * self.ode(self.full(x), p[:4])[self.kept]
+        return ca.integrator("shoot", "cvodes", {"x": x, "p": p, "ode": ode}, 0, grid,
                              {"abstol": tol, "reltol": tol, "fsens_err_con": False, "max_num_steps": 100000,
                               "show_eval_warnings": False})
 
@@ -285,12 +335,23 @@ def plant_values(problem: Problem, dyn: Dynamics) -> dict:
     return v
 
 
-def controller_run(problem: Problem, dyn: Dynamics, mode: str, stop_time: float, build_dir):
-    """The drive controller in mode `mode` on the scene's FMU from the problem's start (cedra.run.cosim)."""
+def controller_run(problem: Problem, dyn: Dynamics, mode: str, stop_time: float, build_dir, on_grid=False):
+    """The drive controller in mode `mode` on the scene's FMU from the problem's start (cedra.run.cosim).
+    on_grid: sampled once per control interval (traction control only: its rolling-rate hold's gain scaled to the
+    period, 0.95 J / T as the controller's default at 0.01 s), so its torques are piecewise constant on the
+    problem's grid and its states at the nodes are a point of the shooting problem up to the integrators'
+    tolerances."""
     from cedra.run.cosim import DriveLoop
     from cedra.run.scenario import fmu
+    values = {"ctrl.mode": GUESSES[mode], "ctrl.tau_max": problem.torque_max}
+    if on_grid:
+        if mode != "traction_control":
+            raise ValueError("only the traction controller is sampled on the problem's grid")
+        spin_inertia = dyn.par[[q.name for q in dyn.model.params].index("m_w")] * \
+            dyn.par[[q.name for q in dyn.model.params].index("R_w")] ** 2 / 2
+        values |= {"ctrl.period": problem.interval, "ctrl.roll_kp": 0.95 * spin_inertia / problem.interval}
     loop = DriveLoop(fmu(problem.scene, build_dir), fmu("drive2d", build_dir), plant_values=plant_values(problem, dyn),
-                     controller_values={"ctrl.mode": GUESSES[mode], "ctrl.tau_max": problem.torque_max})
+                     controller_values=values)
     try:
         r = loop.run(stop_time, REPLAY_STEP, lambda t: {"cmd.v": problem.speed}, record_names())
     finally:
@@ -376,10 +437,10 @@ def model_path(dyn: Dynamics, x0, torques, dt, tol) -> np.ndarray:
     """The optimizer's own trajectory at every REPLAY_STEP: its integrator from x0 over the optimal torques (the
     states at the replay's communication points)."""
     n_sub = int(round(dt / REPLAY_STEP))
-    F = dyn.integrator(tol, n_sub)
-    xs, x = [np.asarray(x0, float)], np.asarray(x0, float)
+    F = dyn.integrator(tol, n_sub, dt)
+    xs, x = [dyn.reduced(x0)], dyn.reduced(x0)
     for tau in torques:
-        r = np.array(F(x0=x, p=np.r_[tau, dt])["xf"])
+        r = np.array(F(x0=x, p=tau)["xf"])
         xs += list(r.T)
         x = r[:, -1]
     return np.array(xs).T
@@ -401,15 +462,18 @@ def initial_guess(names, rows, n: int, dt: float):
 
 def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float, goal_x: float,
           log: bool = False) -> dict:
-    """Multiple shooting: decisions X_0..X_N (X_0 fixed at x0), U_0..U_{N-1} (four torques each), the interval
-    length dt (free for the time objective), the epigraph s (peak_friction). IPOPT, limited-memory Hessian."""
-    n, nx = U_guess.shape[0], dyn.nx
+    """Multiple shooting: decisions X_0..X_N (shooting states, X_0 fixed at x0), U_0..U_{N-1} (four torques
+    each), the interval length dt (free for the time objective), the epigraph s (peak_friction). IPOPT,
+    limited-memory Hessian. The intervals are integrated on `problem.threads` threads."""
+    n, nx = U_guess.shape[0], dyn.nr
     X = ca.MX.sym("X", nx, n + 1)
     U = ca.MX.sym("U", 4, n)
     dt = ca.MX.sym("dt")
     s = ca.MX.sym("s")
-    F = dyn.integrator(problem.integrator_tol).map(n, "serial")
-    xf = F(x0=X[:, :n], p=ca.vertcat(U, ca.repmat(dt, 1, n)))["xf"]
+    free_dt = problem.objective == "time"
+    F = dyn.integrator(problem.integrator_tol, dt=None if free_dt else dt_guess)
+    F = F.map(n, "thread", problem.threads) if problem.threads > 1 else F.map(n, "serial")
+    xf = F(x0=X[:, :n], p=ca.vertcat(U, ca.repmat(dt, 1, n)) if free_dt else U)["xf"]
     weights = ca.DM([2, 2, 1, 1])              # tau[1] = tau[3], tau[2] = tau[4]: each pair's torque counts twice
     energy = dt * ca.sum2(ca.mtimes(weights.T, U ** 2))
     g = [ca.vec(xf - X[:, 1:]), X[0, n] - goal_x]
@@ -426,10 +490,10 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
         ubg += [np.zeros(2 * 4 * n)]
         J = s + problem.regularization * energy
     w = ca.vertcat(ca.vec(X), ca.vec(U), dt, s)
-    lo, hi = state_bounds(dyn)
+    lo, hi = (dyn.reduced(b) for b in state_bounds(dyn))
     x_lo = np.tile(lo[:, None], (1, n + 1))
     x_hi = np.tile(hi[:, None], (1, n + 1))
-    x_lo[:, 0] = x_hi[:, 0] = x0
+    x_lo[:, 0] = x_hi[:, 0] = dyn.reduced(x0)
     u_bound = np.full((4, n), problem.torque_max)
     if problem.objective == "time":
         dt_lo, dt_hi = 0.25 * dt_guess, 2.0 * dt_guess
@@ -439,16 +503,19 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
     ubw = np.concatenate([x_hi.ravel(order="F"), u_bound.ravel(order="F"), [dt_hi],
                           [np.inf if problem.objective == "peak_friction" else 0.0]])
     s0 = 1.0 if problem.objective == "peak_friction" else 0.0
-    w0 = np.concatenate([X_guess.ravel(order="F"), np.clip(U_guess.T, -problem.torque_max,
+    w0 = np.concatenate([dyn.reduced(X_guess).ravel(order="F"), np.clip(U_guess.T, -problem.torque_max,
                                                           problem.torque_max).ravel(order="F"), [dt_guess], [s0]])
     nlp = {"x": w, "f": J, "g": ca.vertcat(*g)}
-    opts = {"ipopt": {"max_iter": problem.max_iter, "tol": problem.tol, "hessian_approximation": "limited-memory",
+    hessian = {"hess_lag": _objective_hessian(w, J, nlp["g"].numel(), nx * (n + 1), problem.proximal)} \
+        if problem.hessian == "objective" else {}
+    opts = {"ipopt": {"max_iter": problem.max_iter, "tol": problem.tol,
+                      "hessian_approximation": "exact" if hessian else "limited-memory",
                       "print_level": 5 if log else 0, "sb": "yes",
                       # the sensitivities carry no jump term where a contact law switches (see the module
                       # docstring), which keeps the dual infeasibility at 1e-3..1e-2 near the optimum: stop there
                       # once the objective has levelled off, with the shooting defects closed
                       "acceptable_tol": 1e-2, "acceptable_iter": 3, "acceptable_obj_change_tol": 1e-3,
-                      "acceptable_constr_viol_tol": 1e-5}, "print_time": False}
+                      "acceptable_constr_viol_tol": 1e-5}, "print_time": False, **hessian}
     solver = ca.nlpsol("climb", "ipopt", nlp, opts)
     t0 = time.perf_counter()
     sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg))
@@ -459,6 +526,19 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
     Uo = wv[nx * (n + 1):nx * (n + 1) + 4 * n].reshape((4, n), order="F").T
     return dict(X=Xo, U=Uo, dt=float(wv[-2]), s=float(wv[-1]), objective=float(sol["f"]), wall=wall,
                 iterations=int(stats["iter_count"]), status=stats["return_status"], success=bool(stats["success"]))
+
+
+def _objective_hessian(w, J, n_g: int, n_states: int, proximal: float) -> ca.Function:
+    """The Hessian of the Lagrangian without the constraints' curvature: lam_f times the objective's own (the
+    energy term is a sum of squares of the torques, so its Hessian is constant and exact). The shooting constraints'
+    second derivatives are not available (the integrator's sensitivities are first order); left out, the steps
+    are those of a generalized Gauss-Newton method, which the objective's curvature in the torques keeps short."""
+    x = ca.MX.sym("x", w.numel())
+    hess = ca.hessian(ca.Function("objective", [w], [J])(x), x)[0]
+    hess = hess + ca.diag(ca.vertcat(ca.DM.ones(n_states) * proximal, ca.DM.zeros(w.numel() - n_states)))
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g)
+    return ca.Function("nlp_hess_l", [x, ca.MX(0, 1), lam_f, lam_g], [ca.triu(lam_f * hess)],
+                       ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
 
 
 def state_bounds(dyn: Dynamics) -> tuple[np.ndarray, np.ndarray]:
@@ -506,6 +586,12 @@ def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
             f"peak |Fx|/Fn {runs[mode][2]['peak_friction']:.3f}")
     names, rows, m_guess = runs[problem.guess]
     dt = problem.interval
+    if problem.guess == "traction_control":
+        r = controller_run(problem, dyn, problem.guess, max(CONTROLLER_STOP, 3 * (problem.horizon or 0)), build_dir,
+                           on_grid=True)
+        names, rows, m_guess = r.names, r.rows, measures(r.names, r.rows, goal_x)
+        say(f"traction_control sampled every {dt:g} s (the guess): arrives {_arrival(m_guess)}, energy "
+            f"{m_guess['energy']:.3f} N^2.m^2.s")
     horizon = problem.horizon or (math.ceil(m_guess["time"] / dt - 1e-9) * dt if m_guess["arrived"] else None)
     if horizon is None:
         raise RuntimeError(f"the {problem.guess} run did not reach body.x = {goal_x:g} m in {CONTROLLER_STOP:g} s: "
