@@ -237,8 +237,9 @@ def main_choose(args) -> int:
     names = [n for n in (getattr(args, "scene", None) or shipped()) if choosable(n)]
     build, quiet = getattr(args, "build", "build"), getattr(args, "quiet", False)
     log = (lambda *a, **k: None) if quiet else (lambda *a, **k: print(*a, **k, flush=True))
-    announce("report defaults --choose", f"about {12 * len(names)} s ({len(names)} scenes, "
-             f"{len(CANDIDATES) * CHOICE_REPEATS + 1} runs each)", quiet)
+    # measured: 163 s for the five 3D scenes but bump3d on two cores (docs/reports/defaults-choice.md)
+    announce("report defaults --choose", f"about {35 * len(names)} s ({len(names)} scenes, "
+             f"{len(CANDIDATES) * (CHOICE_REPEATS + 1) + 1} runs each)", quiet)
     load0, t0 = load_average(), time.perf_counter()
     results = {}
     for name in names:
