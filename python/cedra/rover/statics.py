@@ -61,6 +61,19 @@ def _unknowns(dims):
     return ca.SX.sym("N", n), ca.SX.sym("T", n), lateral, ca.SX.sym("a")
 
 
+def _pose(s: dict, dims: str) -> ca.SX:
+    """The full coordinates at the measured pose of pose_symbols (yaw, position and spins 0; 2D: roll 0, the bogies
+    together, no steering)."""
+    pose = ca.SX.zeros(len(FULL_Q))
+    pose[IDX["pitch"]] = s["pitch"]
+    pose[IDX["roll"]] = s["roll"] if dims == "3d" else 0
+    for n, v in (("theta1", s["theta"][0]), ("theta2", s["theta"][1] if dims == "3d" else s["theta"][0]),
+                 ("theta4", s["theta"][2]), ("theta3", s["steer"][0] if dims == "3d" else 0),
+                 ("theta6", s["steer"][1] if dims == "3d" else 0)):
+        pose[IDX[n]] = v
+    return pose
+
+
 @lru_cache(maxsize=None)
 def _balance_function(dims: str) -> ca.Function:
     """(pitch, roll, theta, steer, psi, par) -> (A, b) with A u = b, u = (N, T, L (3D), a)."""
@@ -98,15 +111,7 @@ def _balance_function(dims: str) -> ca.Function:
     u = ca.vertcat(N, T, L, a) if dims == "3d" else ca.vertcat(N, T, a)
     A = ca.jacobian(residual, u)
     b = -ca.substitute(residual, u, ca.DM.zeros(u.numel()))
-    pose = ca.DM.zeros(len(FULL_Q))
-    values = ca.SX(pose)
-    values[IDX["pitch"]] = s["pitch"]
-    values[IDX["roll"]] = s["roll"] if dims == "3d" else 0
-    for n, v in (("theta1", s["theta"][0]), ("theta2", s["theta"][1] if dims == "3d" else s["theta"][0]),
-                 ("theta4", s["theta"][2]), ("theta3", s["steer"][0] if dims == "3d" else 0),
-                 ("theta6", s["steer"][1] if dims == "3d" else 0)):
-        values[IDX[n]] = v
-    A, b = ca.substitute([A, b], [q], [values])
+    A, b = ca.substitute([A, b], [q], [_pose(s, dims)])
     return ca.Function(f"balance{dims}", [s[k] for k in ("pitch", "roll", "theta", "steer", "psi", "par")],
                        [A, b], ["pitch", "roll", "theta", "steer", "psi", "par"], ["A", "b"])
 
@@ -200,14 +205,7 @@ def _rolling_function(dims: str) -> ca.Function:
     rate_values[IDX["theta1"]] = theta_dot[0]
     rate_values[IDX["theta2"]] = theta_dot[1] if dims == "3d" else theta_dot[0]
     rate_values[IDX["theta4"]] = theta_dot[2]
-    pose = ca.SX.zeros(len(FULL_Q))
-    pose[IDX["pitch"]] = s["pitch"]
-    pose[IDX["roll"]] = s["roll"] if dims == "3d" else 0
-    for n, v in (("theta1", s["theta"][0]), ("theta2", s["theta"][1] if dims == "3d" else s["theta"][0]),
-                 ("theta4", s["theta"][2]), ("theta3", s["steer"][0] if dims == "3d" else 0),
-                 ("theta6", s["steer"][1] if dims == "3d" else 0)):
-        pose[IDX[n]] = v
-    rates = ca.substitute([ca.substitute(rates, qd, rate_values)], [q], [pose])[0]
+    rates = ca.substitute([ca.substitute(rates, qd, rate_values)], [q], [_pose(s, dims)])[0]
     names = ["pitch", "roll", "theta", "steer", "psi", "par", "velocity", "omega", "theta_dot"]
     return ca.Function(f"rolling{dims}", [s[k] for k in names[:6]] + [velocity, omega, theta_dot], [rates],
                        names, ["rates"])
