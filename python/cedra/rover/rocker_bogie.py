@@ -17,6 +17,7 @@ from cedra.contract import Quantity as Q
 from cedra.mechanics.kane import Body
 from cedra.mechanics.rover import POSE, SPINS, CollisionPoint, RoverDescription, RoverKind, Stop, Wheel
 from cedra.mechanics.transforms import apply, homogeneous, rot_x, rot_y, rot_z
+from cedra.rover import parameters
 from cedra.rover.mechanism import stop_energy, stop_torque
 
 COORDINATES = POSE + ("rho", "beta_L", "beta_R") + SPINS
@@ -24,8 +25,10 @@ IDX = {name: i for i, name in enumerate(COORDINATES)}
 EY = ca.DM([0, 1, 0])
 EZ = ca.DM([0, 0, 1])
 
+# the rover's own geometry and body mass; wheel radius, stops' law, body inertia, wheel mass and g are CEDRA's
+CEDRA_PARAMETERS = {q.name: q for q in parameters.ROVER}
 PARAMETERS = [
-    Q("R_w", 0.065, "m", "wheel radius", min=1e-4),
+    CEDRA_PARAMETERS["R_w"],
     Q("rocker_x", 0.0, "m", "rocker pivots Q = (rocker_x, +-rocker_y, rocker_z) in the body frame"),
     Q("rocker_y", 0.17, "m", "rocker pivots: half track", min=0.0),
     Q("rocker_z", -0.035, "m", "rocker pivots: z in the body frame"),
@@ -37,15 +40,10 @@ PARAMETERS = [
     Q("bogie_drop", 0.05, "m", "bogie pivot to each bogie wheel, downward"),
     Q("rocker_stop", 0.5, "rad", "rocker joint stop |rho| <= rocker_stop", min=0.0),
     Q("bogie_stop", 0.6, "rad", "bogie joint stops |beta_L|, |beta_R| <= bogie_stop", min=0.0),
-    Q("stop_k", 500.0, "N.m/rad", "joint stop stiffness", min=0.0),
-    Q("stop_d", 5.0, "N.m.s/rad", "joint stop damping", min=0.0),
+    CEDRA_PARAMETERS["stop_k"],
+    CEDRA_PARAMETERS["stop_d"],
     Q("m_B", 21.0, "kg", "body mass (rockers and bogies are massless)", min=1e-6),
-    Q("I_Bxx", 0.1875, "kg.m2", "body inertia about x", min=1e-9),
-    Q("I_Byy", 0.6375, "kg.m2", "body inertia about y", min=1e-9),
-    Q("I_Bzz", 0.75, "kg.m2", "body inertia about z", min=1e-9),
-    Q("m_w", 0.5, "kg", "wheel mass", min=1e-6),
-    Q("g", 9.81, "m/s2", "gravitational acceleration", min=0.0),
-]
+] + [CEDRA_PARAMETERS[n] for n in ("I_Bxx", "I_Byy", "I_Bzz", "m_w", "g")]
 DEFAULTS = {p.name: p.start for p in PARAMETERS}
 
 # the body's box in frame R (its floor, front and rear faces) and the links' points: each rocker's arm to its front
