@@ -9,8 +9,8 @@
  * convergence). The terrain is the scene's generated cedra_terrain: (xy[2], tin[8]) -> (h, gradient[2],
  * Hessian[2x2]).
  *
- * The search: g at 13 angles beta_j = (j - 6) pi/12 (on a heightmap each arc near touching sampled again, see
- * RIM_BAND); a sample is a maximum where it is >= its left neighbour and > its right one (an end where g rises
+ * The search: g at 13 angles beta_j = (j - 6) pi/12 (in 3D and on a heightmap each arc near touching sampled
+ * again, see RIM_BAND); a sample is a maximum where it is >= its left neighbour and > its right one (an end where g rises
  * toward it); the three highest maxima are kept; each is polished by safeguarded Newton on g' = 0 inside its
  * samples' bracket (a Newton step that leaves the bracket or meets g'' of the wrong sign is replaced by
  * bisection), started from the vertex of the samples' parabola; each saddle from the lowest sample between two
@@ -252,9 +252,14 @@ int cedra_rim_one_maximum(const double *x) {
     return proven_one(&k, n0);
 }
 
-/* A heightmap's spline can hold features between the 15-degree samples (a block's edge, the spline's ripple
- * beside it): an arc whose end samples lie within RIM_BAND of touching (g > -RIM_BAND) is sampled again at
- * RIM_SPLIT equal parts. Analytic terrains keep the 13 samples (their features are wider than an arc). */
+/* Two maxima can lie within one 15-degree arc: a heightmap's spline holds features that narrow (a block's edge,
+ * the spline's ripple beside it), and a wheel that meets a smoothed stair edge obliquely sees the edge and the
+ * tread as two maxima about 20 degrees apart on a plateau whose saddle is a few hundredths of a millimetre deep
+ * (measured on the rocker-bogie's stairs run); the 15-degree samples then see one maximum, and the Newton
+ * polish lands on either, so the force jumps between the two points. So on every terrain an arc whose end
+ * samples lie within RIM_BAND of touching (g > -RIM_BAND) is sampled again at RIM_SPLIT equal parts, on a
+ * heightmap and in 3D (CEDRA_RIM_REFINE). A planar scene's wheel meets the features square on, where the 13
+ * samples find every maximum (tests/test_contact_multi.py: the exhaustive search on the shipped runs). */
 #define RIM_BAND 0.002
 #define RIM_SPLIT 8
 #define RIM_MAXS (RIM_NSAMPLE + (RIM_NSAMPLE - 1) * (RIM_SPLIT - 1))
@@ -292,7 +297,7 @@ static int search(const double *x, double *r) {
     for (int j = 0; j < RIM_NSAMPLE; j++) {
         beta[n] = (j - 6) * step;
         gs[n++] = coarse[j];
-#if CEDRA_HEIGHTMAP
+#if CEDRA_RIM_REFINE
         if (j + 1 < RIM_NSAMPLE && fmax(coarse[j], coarse[j + 1]) > -RIM_BAND)
             for (int m = 1; m < RIM_SPLIT; m++) {
                 double d1, d2;

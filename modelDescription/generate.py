@@ -210,6 +210,7 @@ def vars_header(spec: ModelSpec, guid: str) -> str:
         f"#define CEDRA_RIGID {1 if spec.contact == 'rigid' else 0}", f"#define CEDRA_NC {spec.n_contacts}",
         f"#define CEDRA_NCW {spec.contacts_per_wheel}",
         f"#define CEDRA_HEIGHTMAP {1 if spec.heightmap_file else 0}",
+        f"#define CEDRA_RIM_REFINE {1 if spec.rim_refine else 0}",
         f"#define CEDRA_NSW {len(spec.switch_names)}", f"#define CEDRA_NH {spec.n_hold}",
         f"#define CEDRA_CHASSIS {1 if spec.chassis else 0}",
         f"#define CEDRA_CONTROLLER {1 if spec.block == 'controller' else 0}",

@@ -2,8 +2,9 @@
 
 - The search agrees with an exhaustive one (tests/contact_reference.py: g every 0.01 degree, every maximum and
   saddle polished by Newton) to 1e-9 m in every delta_k: at wheel positions around a sharp step's corner and edge,
-  and at the states of the shipped runs on curved terrain (bump2d, step2d, bump3d, stairs2d, and the heightmaps
-  hills3d and rubble3d: every 0.25 s).
+  around a stair edge met obliquely (two maxima within one of the coarse samples' arcs), and at the states of the
+  shipped runs on curved terrain (bump2d, step2d, bump3d, stairs2d, stairs3d, the rocker-bogie's step2d and
+  stairs3d, and the heightmaps hills3d and rubble3d: every 0.25 s).
 - A wheel center driven along a path into the corner of ground and face and up over the edge: the wheel's total
   force is continuous (its largest jump between path points shrinks with the path's spacing) and equals the sum
   of its contacts.
@@ -46,7 +47,8 @@ class Wheel:
         terrain = self.terrain = Terrain(kind, ins, heightmap_file)
         c, a, v = ca.SX.sym("c", 3), ca.SX.sym("a", 3), ca.SX.sym("v", 3)
         k, d, mu = ca.SX.sym("k"), ca.SX.sym("d"), ca.SX.sym("mu")
-        search = rim.search_external(terrain)(rim.search_input(c, a, R_W, terrain))
+        # the plant's search for these dims (3D: every arc near touching sampled again, CedraModel.rim_refine)
+        search = rim.search_external(terrain, dims == "3d")(rim.search_input(c, a, R_W, terrain))
         geos, present = rim_contacts(c, a, terrain, R_W, search)
         forces = [compliant_force(g, v, k, d, mu, 0.01) for g in geos]
         total = sum(f[0] for f in forces)
@@ -122,6 +124,25 @@ def test_search_is_exhaustive_at_the_step(step_wheel):
     worst, two = assert_search_exact(step_wheel, centers)
     print(f"step: worst {worst:.1e} m over {len(centers)} positions, {two} with several maxima")
     assert two >= 5
+
+
+# stairs3d's stairs (rise 1.5 R_w, run 4 R_w, turned by 20 degrees) and a wheel of the rocker-bogie's stairs run
+# that meets an edge obliquely (t = 11.5 s): the edge and the tread are two maxima about 20 degrees apart on the rim,
+# with a saddle 0.03 mm below the lower one, inside what the 15-degree samples see as one maximum
+STAIRS3D = dict(terrain_h=0.0975, terrain_w=0.26, terrain_x0=1.0, terrain_y0=0.0, terrain_s=0.01,
+                terrain_yaw=0.3490658503988659)
+OBLIQUE = (np.array([1.76232486, -1.4668244, 0.15805834]), np.array([0.59333706, 0.72097732, 0.35797043]))
+
+
+def test_search_is_exhaustive_where_a_wheel_meets_a_stair_edge_obliquely():
+    wheel = Wheel("stairs", STAIRS3D, "3d")
+    c0, a = OBLIQUE
+    # the wheel pressed 2 mm deeper to 0.5 mm higher: the two maxima stay (the search without the arcs' second
+    # sampling finds one of them, and the force jumps between their points)
+    centers = [c0 + (0, 0, dz) for dz in np.linspace(-0.002, 0.0005, 11)]
+    worst, two = assert_search_exact(wheel, centers, [a] * len(centers))
+    print(f"oblique stair edge: worst {worst:.1e} m over {len(centers)} positions, {two} with two contacts")
+    assert two == len(centers)
 
 
 def corner_path(n):
@@ -246,7 +267,8 @@ def run_states(scene, seconds):
     m = CedraModel(sc.options)
     out = {"x": "body.x", "y": "body.y", "z": "body.z", "yaw": "body.yaw", "pitch": "body.pitch",
            "roll": "body.roll", "theta1": "bogie.theta[1]", "theta2": "bogie.theta[2]", "theta4": "fork.theta4",
-           "theta3": "steer.theta[1]", "theta6": "steer.theta[2]"}
+           "theta3": "steer.theta[1]", "theta6": "steer.theta[2]",
+           "rho": "rocker.rho", "beta_L": "bogie.beta[1]", "beta_R": "bogie.beta[2]"}     # the rocker-bogie's
     names, data, _, info = run_bump(fmu, seconds, {}, extra=list(out.values()))
     assert info["ok"], info["messages"][-2:]
     col = {n: k for k, n in enumerate(names)}
@@ -265,6 +287,7 @@ def run_states(scene, seconds):
 
 
 @pytest.mark.parametrize("scene, seconds", [("bump2d", 15.0), ("step2d", 15.0), ("bump3d", 15.0), ("stairs2d", 20.0),
+                                            ("stairs3d", 12.0), ("rb_stairs3d", 12.0), ("rb_step2d", 15.0),
                                             ("hills3d", 15.0), ("rubble3d", 7.5)])
 def test_search_is_exhaustive_on_the_shipped_runs(scene, seconds):
     sc, states = run_states(scene, seconds)

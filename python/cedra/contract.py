@@ -164,6 +164,8 @@ class ModelSpec:
     heightmap_file: str = ""                # terrain "heightmap": the grid file, shipped as resources/heightmap.txt;
     #                                         the generated functions call the external cedra_heightmap (its C
     #                                         implementation is fmu_src/heightmap.c)
+    rim_refine: bool = False                # the rim search samples the arcs near touching again (fmu_src/rim.c,
+    #                                         CEDRA_RIM_REFINE): 3D scenes and heightmaps
 
     @property
     def nq(self) -> int:

@@ -47,14 +47,14 @@ def _terrain_c(terrain: Terrain) -> str:
 
 
 @lru_cache(maxsize=None)
-def _library(code: str, on_heightmap: bool = False) -> Path:
+def _library(code: str, on_heightmap: bool = False, refine: bool = False) -> Path:
     """rim.c and the terrain's generated code as a shared library. on_heightmap: the terrain calls the heightmap's
     external functions, which this library takes from the heightmap's host library (the one process-wide map,
     cedra.mechanics.heightmap), and a rim proven to have one maximum returns its presence flags alone, as in a
     heightmap scene's FMU (CEDRA_HEIGHTMAP: the model takes that maximum from the heightmap's own search).
-    No memo here (RIM_HOST)."""
+    refine: every arc near touching sampled again (CEDRA_RIM_REFINE). No memo here (RIM_HOST)."""
     rim = SOURCE.read_bytes()
-    extra = ["-DRIM_HOST", f"-DCEDRA_HEIGHTMAP={int(on_heightmap)}"]
+    extra = ["-DRIM_HOST", f"-DCEDRA_HEIGHTMAP={int(on_heightmap)}", f"-DCEDRA_RIM_REFINE={int(refine)}"]
     if on_heightmap:
         hm = heightmap.host_library()
         extra += [str(hm), f"-Wl,-rpath,{hm.parent}"]
@@ -79,16 +79,17 @@ def _library(code: str, on_heightmap: bool = False) -> Path:
     return lib
 
 
-def _host(terrain: Terrain) -> Path:
+def _host(terrain: Terrain, refine: bool = False) -> Path:
     on_heightmap = terrain.kind.name == "heightmap"
     if on_heightmap:
         heightmap.external()        # the host library loaded first: this library's dependency is that object
-    return _library(_terrain_c(terrain), on_heightmap)
+    return _library(_terrain_c(terrain), on_heightmap, refine or on_heightmap)
 
 
-def search_external(terrain: Terrain) -> ca.Function:
-    """cedra_rim_search for this terrain: (x[15] = [center, axle, radius, terrain inputs padded]) -> (r[8])."""
-    return ca.external(EXTERNAL_NAME, str(_host(terrain)))
+def search_external(terrain: Terrain, refine: bool = False) -> ca.Function:
+    """cedra_rim_search for this terrain: (x[15] = [center, axle, radius, terrain inputs padded]) -> (r[8]).
+    refine: every arc near touching sampled again (always on a heightmap; the plant asks for it in 3D)."""
+    return ca.external(EXTERNAL_NAME, str(_host(terrain, refine)))
 
 
 def search_input(center, axle, radius, terrain: Terrain):

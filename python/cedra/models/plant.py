@@ -267,6 +267,14 @@ class CedraModel:
         Planar terrain has one contact exactly."""
         return not self.terrain.planar and not self.symbolic_rim
 
+    @property
+    def rim_refine(self) -> bool:
+        """The rim search samples every arc near touching again (fmu_src/rim.c, RIM_BAND): on a heightmap, whose
+        spline has features narrower than an arc, and in 3D, where a wheel meets an edge obliquely and sees the
+        edge and the tread as two maxima within one arc. A planar scene's wheel meets the terrain's features
+        square on, where the 13 samples find every maximum (the exhaustive search agrees on the shipped runs)."""
+        return self.opt.dims == "3d" or self.terrain.kind.name == "heightmap"
+
     def _rigid_contact(self, frame_velocity, gap) -> dict:
         """A contact of the rigid model: its force is a symbol the glue's solve fills (lam: Fx, Fy, Fn in the
         contact frame); vc, the contact frame's velocity components, and gap go to cedra_contact."""
@@ -293,7 +301,7 @@ class CedraModel:
             search = self._searches.get(self.planar_twins.get(wh.index)) if self.opt.dims == "2d" else None
             if search is None:
                 if self._rim_search is None:
-                    self._rim_search = rim.search_external(self.terrain)
+                    self._rim_search = rim.search_external(self.terrain, self.rim_refine)
                 search = self._rim_search(rim.search_input(wh.center, wh.axle, p["R_w"], self.terrain))
             self._searches[wh.index] = search
             geos, present = rim_contacts(wh.center, wh.axle, self.terrain, p["R_w"], search, self._freeze)
@@ -622,7 +630,7 @@ class CedraModel:
                          functions=LazyFunctions(lambda: self._num), contact=self.opt.contact,
                          n_contacts=len(self.rigid_contacts),
                          contacts_per_wheel=len(self.contacts[0]["parts"]) if self.rigid else 0,
-                         heightmap_file=self.opt.heightmap,
+                         heightmap_file=self.opt.heightmap, rim_refine=self.rim_refine,
                          switch_names=list(self.switches[3]), n_hold=len(self.switches[1]),
                          chassis=bool(self.chassis) and not self.rigid,   # rigid: contacts of cedra_contact
                          **kw)

@@ -45,18 +45,20 @@ RIM_FUNCTIONS = ("cedra_terrain", "cedra_rim_samples", "cedra_terrain_bounds")  
 RIM_SOURCE = Path(__file__).resolve().parents[3] / "fmu_src" / "rim.c"
 
 
-def compile_functions(fns: dict, names, workdir: Path) -> dict:
+def compile_functions(fns: dict, names, workdir: Path, rim_refine: bool = False) -> dict:
     """The named CasADi functions as C (CasADi's code generator), compiled with gcc into one shared library,
     loaded back with casadi.external. A scene with an analytic terrain's contact search (the functions call
     cedra_rim_search) gets fmu_src/rim.c and the terrain functions it calls linked in, as its FMU does (without
-    the FMU's memo of searches: RIM_HOST). Heightmap scenes are not supported (their terrain is the FMU's)."""
+    the FMU's memo of searches: RIM_HOST; rim_refine: the spec's). Heightmap scenes are not supported (their
+    terrain is the FMU's)."""
     rim = [n for n in RIM_FUNCTIONS if n in fns]
     cg = ca.CodeGenerator("bench_fns.c", {"with_header": False})
     for n in list(names) + rim:
         cg.add(fns[n])
     src = Path(cg.generate(str(workdir) + "/"))
     lib = workdir / "bench_fns.so"
-    extra = ["-DRIM_HOST", "-DCEDRA_HEIGHTMAP=0", str(RIM_SOURCE)] if rim else []
+    extra = ["-DRIM_HOST", "-DCEDRA_HEIGHTMAP=0", f"-DCEDRA_RIM_REFINE={int(rim_refine)}", str(RIM_SOURCE)] \
+        if rim else []
     subprocess.run(["gcc", *CFLAGS, str(src), *extra, "-o", str(lib), "-lm"], check=True, capture_output=True)
     return {n: ca.external(n, str(lib)) for n in names}
 
@@ -107,7 +109,7 @@ def bench_scene(name, build, stop_time):
     u[prob.q_names.index("x")] = 0.2
     inp = prob.inp(sched.at(0.0))
     with tempfile.TemporaryDirectory() as d:
-        ext = compile_functions(prob.fns, ["cedra_M", "cedra_f", "cedra_rjac"], Path(d))
+        ext = compile_functions(prob.fns, ["cedra_M", "cedra_f", "cedra_rjac"], Path(d), prob.spec.rim_refine)
         a = np.array(prob.fns["cedra_M"](q0, prob.par)).dot(np.zeros(prob.nq))
         out["t_M"] = time_per_call(ext["cedra_M"], [q0, prob.par])
         out["t_f"] = time_per_call(ext["cedra_f"], [q0, u, inp, prob.par])

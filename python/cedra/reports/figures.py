@@ -340,7 +340,7 @@ def fig_switch(ctx) -> str:
         inp = prob.inp0
         nh = prob.spec.n_hold
         with tempfile.TemporaryDirectory() as d:
-            ext = compile_functions(prob.fns, ["cedra_switch", "cedra_f"], Path(d))
+            ext = compile_functions(prob.fns, ["cedra_switch", "cedra_f"], Path(d), prob.spec.rim_refine)
             t_sw = time_per_call(ext["cedra_switch"], [q0, u, inp, prob.par, np.zeros(nh)])
             t_f = time_per_call(ext["cedra_f"], [q0, u, inp, prob.par])
         rows.append([scene, str(len(prob.spec.switch_names)), f"{t_sw * 1e6:.2f}", f"{t_f * 1e6:.2f}"])
