@@ -166,3 +166,14 @@ def test_bump_crossed_in_both_modes():
         slip[mode] = np.mean(np.abs([r.column(f"wheel[{i}].slip") for i in range(1, 7)]))
     print(f"mean |slip|: equal torques {slip[0]:.6f} m/s, inverse kinematics {slip[1]:.6f} m/s")
     assert slip[1] < 0.002
+
+
+def test_turn_flat_scenario_with_the_rocker_bogie(tmp_path):
+    """examples/turn_flat.py with rover = "rocker_bogie" runs rb_flat3d + rb_drive3d and writes its files; an
+    unknown rover is refused before anything runs."""
+    turn = scenario.load("turn_flat")
+    summary = turn.run(out_dir=str(tmp_path), build_dir=str(BUILD), stop_time=3.0, quiet=True, rover="rocker_bogie")
+    assert summary["yaw_rate"] > 0
+    assert {p.name for p in tmp_path.iterdir()} == {"turn_flat.csv", "path.png", "tracking.png"}
+    with pytest.raises(scenario.ScenarioError, match="turn_flat: unknown rover 'mars'"):
+        turn.run(out_dir=str(tmp_path / "no"), build_dir=str(BUILD), stop_time=1.0, quiet=True, rover="mars")
