@@ -31,6 +31,10 @@ pose, the contact angles and the torques only). Every mode is evaluated at every
 
 The equations are kinematics.drive_expressions: the same CasADi graph the Python functions evaluate. The FMU
 carries only the generated sample function (no solver, no contact code): fmu_src/controller.c.
+
+Another rover's controller (rover_controller_spec; the rocker-bogie's rb_drive2d, rb_drive3d) has modes 0 and 1
+with the same loops, its wheel rates from cedra.mechanics.drive_kinematics (its own description's Jacobians; a turn
+is skid-steered through them) and its inputs named as its plant's outputs; traction control is CEDRA's only.
 """
 from __future__ import annotations
 
