@@ -26,6 +26,7 @@ outputs (the measured joints are the joint outputs that are a coordinate or a co
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import casadi as ca
 import numpy as np
 
