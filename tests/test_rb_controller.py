@@ -157,15 +157,30 @@ def test_skid_steered_turn_on_flat_ground():
 
 def test_bump_crossed_in_both_modes():
     """rb_bump2d + rb_drive2d at 0.2 m/s, 15 s: both modes get over the bump; the inverse kinematics' mean slip
-    stays below 1 % of the commanded speed (equal torques slip less on this rover: its six loads are equal)."""
-    rec = ["body.x"] + [f"wheel[{i}].slip" for i in range(1, 7)]
-    slip = {}
+    stays below 1 % of the commanded speed (equal torques slip less on this rover: its six loads are equal). The
+    wheel rates replayed over the equal-torque run with the measured speed in place of the command are the plant's
+    wheel rates up to the wheels' small slip."""
+    wheels = range(1, 7)
+    rec = ["body.x", "body.vx", "body.pitch", "body.wy", "bogie.beta[1]", "bogie.rate[1]"] + \
+        [f"wheel[{i}].{q}" for q in ("slip", "omega", "psi_R") for i in wheels]
+    slip, runs = {}, {}
     for mode in (0, 1):
-        r = _run("rb_bump2d", "rb_drive2d", 15.0, {"cmd.v": 0.2}, rec, **{"ctrl.mode": mode})
+        r = runs[mode] = _run("rb_bump2d", "rb_drive2d", 15.0, {"cmd.v": 0.2}, rec, **{"ctrl.mode": mode})
         assert r.column("body.x")[-1] > 2.5
-        slip[mode] = np.mean(np.abs([r.column(f"wheel[{i}].slip") for i in range(1, 7)]))
+        slip[mode] = np.mean(np.abs([r.column(f"wheel[{i}].slip") for i in wheels]))
     print(f"mean |slip|: equal torques {slip[0]:.6f} m/s, inverse kinematics {slip[1]:.6f} m/s")
     assert slip[1] < 0.002
+    r, k = runs[0], drive_kinematics(ROCKER_BOGIE, "2d")
+    n = len(r.column("time"))
+    zero = np.zeros(n)
+    replay = np.array(k.function.map(n)(r.column("body.vx"), zero, r.column("body.pitch"), zero, zero,
+                                        r.column("body.wy"), r.column("bogie.beta[1]")[None, :],
+                                        r.column("bogie.rate[1]")[None, :],
+                                        np.array([r.column(f"wheel[{i}].psi_R") for i in wheels]),
+                                        np.array([DEFAULTS[p] for p in k.params])[:, None]))
+    error = np.abs(replay - np.array([r.column(f"wheel[{i}].omega") for i in wheels]))
+    print(f"replayed wheel rates against the plant's: mean {error.mean():.4f}, largest {error.max():.3f} rad/s")
+    assert error.mean() < 0.02
 
 
 def test_turn_flat_scenario_with_the_rocker_bogie(tmp_path):
