@@ -24,9 +24,9 @@ def shipped_fmu(name: str, tmp_path_factory) -> Path:
         return built
     if name not in _BUILT:
         from cedra.fmu.packaging import build_fmu
-        from cedra.models.controller import CONTROLLERS, controller_spec
+        from cedra.models.controller import CONTROLLERS, shipped_controller
         from cedra.models.scene import load_shipped
-        spec = controller_spec(CONTROLLERS[name]) if name in CONTROLLERS else load_shipped(name).spec()
+        spec = shipped_controller(name) if name in CONTROLLERS else load_shipped(name).spec()
         _BUILT[name] = Path(build_fmu(spec, tmp_path_factory.mktemp(name)))
     return _BUILT[name]
 

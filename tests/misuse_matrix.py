@@ -32,7 +32,6 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 
 from cedra.contract import SOLVER_METHODS
-from cedra.models.controller import MODES as CONTROLLER_MODES
 
 OK, WARNING, DISCARD, ERROR, FATAL = range(5)
 STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
@@ -305,7 +304,7 @@ def _value_cases(md) -> list[Case]:
         cases.append(set_real(name, value))
     integers = (("solver.method", -1), ("solver.method", len(SOLVER_METHODS)), ("solver.max_steps", 0),
                 ("solver.max_steps", -5)) \
-        if plant else (("ctrl.mode", -1), ("ctrl.mode", len(CONTROLLER_MODES)))
+        if plant else (("ctrl.mode", -1), ("ctrl.mode", int(vs["ctrl.mode"].max) + 1))
     for name, value in integers:
         vr = vs[name].valueReference
         cases.append(Case("NaN, infinite and out-of-range values", f"{name} = {value}", "init",

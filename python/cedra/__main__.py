@@ -12,12 +12,12 @@ from cedra.contract import SOLVER_METHODS
 def _build_one(name: str, out: str) -> tuple[str, str, float, float]:
     """Generate, compile and package one scene (shipped name or .toml) or drive controller, in a worker process:
     (FMU name, path, seconds for the model, seconds for C code and compile)."""
-    from cedra.models.controller import CONTROLLERS, controller_spec
+    from cedra.models.controller import CONTROLLERS, shipped_controller
     from cedra.fmu.packaging import build_fmu
     from cedra.models.scene import load, load_shipped
     t0 = time.perf_counter()
     if name in CONTROLLERS:
-        spec = controller_spec(CONTROLLERS[name])
+        spec = shipped_controller(name)
     else:
         spec = (load(name) if name.endswith(".toml") else load_shipped(name)).spec()
     t1 = time.perf_counter()
@@ -129,8 +129,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m cedra")
     sub = ap.add_subparsers(dest="cmd", required=True)
     b = sub.add_parser("build", help="generate, compile and package FMUs (default: every shipped scene and the "
-                       "drive controllers drive2d, drive3d)")
-    b.add_argument("scenes", nargs="*", help="shipped scene names, .toml files, or drive2d / drive3d")
+                       "drive controllers drive2d, drive3d, rb_drive2d, rb_drive3d)")
+    b.add_argument("scenes", nargs="*", help="shipped scene names, .toml files, or drive controllers "
+                   "(drive2d, drive3d, rb_drive2d, rb_drive3d)")
     b.add_argument("--out", default="build")
     b.add_argument("--jobs", type=int, default=0, help="scenes built at once (default: one per CPU core)")
     s = sub.add_parser("simulate", help="run the main job (bump2d: the paper's bump run) or a scenario script")

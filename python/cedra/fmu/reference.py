@@ -134,9 +134,9 @@ def markdown_page(spec: ModelSpec) -> str:
 
 def shipped_specs() -> list[ModelSpec]:
     """Every FMU `python -m cedra build` makes: the shipped scenes, then the drive controllers."""
-    from cedra.models.controller import CONTROLLERS, controller_spec
+    from cedra.models.controller import CONTROLLERS, shipped_controller
     from cedra.models.scene import load_shipped, shipped
-    return [load_shipped(n).spec() for n in shipped()] + [controller_spec(CONTROLLERS[c]) for c in CONTROLLERS]
+    return [load_shipped(n).spec() for n in shipped()] + [shipped_controller(c) for c in CONTROLLERS]
 
 
 def shipped_names() -> list[str]:

@@ -31,11 +31,16 @@ pose, the contact angles and the torques only). Every mode is evaluated at every
 
 The equations are kinematics.drive_expressions: the same CasADi graph the Python functions evaluate. The FMU
 carries only the generated sample function (no solver, no contact code): fmu_src/controller.c.
+
+Another rover's controller (rover_controller_spec; the rocker-bogie's rb_drive2d, rb_drive3d) has modes 0 and 1
+with the same loops, its wheel rates from cedra.mechanics.drive_kinematics (its own description's Jacobians; a turn
+is skid-steered through them) and its inputs named as its plant's outputs; traction control is CEDRA's only.
 """
 from __future__ import annotations
 
 import casadi as ca
 
+from cedra.mechanics.drive_kinematics import drive_kinematics
 from cedra.rover.kinematics import KIN_PARAMS, drive_expressions, drive_symbols
 from cedra.rover.parameters import DEFAULTS, ROVER, STEER_LIMIT
 from cedra.mechanics.transforms import rot_z
@@ -50,7 +55,9 @@ MODES = {"equal_torques": 0, "inverse_kinematics": 1, "traction_control": 2}
 TRACTION_NEWTON_STEPS = 5
 # the balance's parameters beyond the kinematics': the controller's own copy of the rover's masses and springs
 CONTROLLER_PARAMS = KIN_PARAMS + tuple(n for n in STATICS_PARAMS if n not in KIN_PARAMS)
-CONTROLLERS = {"drive2d": "2d", "drive3d": "3d"}     # the shipped controller FMUs (build/<name>.fmu) and their dims
+# the shipped controller FMUs (build/<name>.fmu): their rover (cedra.models.rovers) and dims
+CONTROLLERS = {"drive2d": ("cedra", "2d"), "drive3d": ("cedra", "3d"),
+               "rb_drive2d": ("rocker_bogie", "2d"), "rb_drive3d": ("rocker_bogie", "3d")}
 
 
 def _geometry_params() -> list[Quantity]:
@@ -288,10 +295,21 @@ def sample_function(dims: str) -> ca.Function:
                        ["y", "xd_next"])
 
 
-def controller_spec(dims: str = "3d", name: str | None = None) -> ModelSpec:
-    """The drive controller for a 2D or 3D plant (3D: with steering and the yaw rate command)."""
+def shipped_controller(name: str) -> ModelSpec:
+    """The spec of the shipped controller FMU `name` (CONTROLLERS)."""
+    if name not in CONTROLLERS:
+        raise ValueError(f"no drive controller {name!r} ({', '.join(CONTROLLERS)})")
+    rover, dims = CONTROLLERS[name]
+    return controller_spec(dims, name, rover)
+
+
+def controller_spec(dims: str = "3d", name: str | None = None, rover: str = "cedra") -> ModelSpec:
+    """The drive controller for a 2D or 3D plant of `rover` (cedra.models.rovers): CEDRA's (3D: with steering and
+    the yaw rate command), or another rover's (rover_controller_spec)."""
     if dims not in ("2d", "3d"):
         raise ValueError(f"dims must be 2d or 3d, got {dims!r}")
+    if rover != "cedra":
+        return rover_controller_spec(rover, dims, name)
     spec = ModelSpec(
         name=name or f"drive{dims[0]}d", block="controller",
         description=f"CEDRA drive controller ({dims}): the paper's inverse kinematics (Eqs. 9-13) and geometric "
@@ -299,6 +317,137 @@ def controller_spec(dims: str = "3d", name: str | None = None) -> ModelSpec:
         "every ctrl.period",
         q_names=[], z_names=[], params=params(), inputs=inputs(dims), outputs=outputs(dims), q_start=[],
         settle_idx=[], functions={"cedra_sample": sample_function(dims)}, d_names=list(STATES), stop_time=15.0,
+        output_interval=0.01)
+    spec.check()
+    return spec
+
+
+# ---------------------------------------------------------------- any other rover: its description's kinematics
+
+ROVER_MODES = ("equal_torques", "inverse_kinematics")      # modes 0, 1 (traction control, 2, is CEDRA's only)
+_ROVER_CTRL = ("ctrl.period", "ctrl.tau_max", "ctrl.ramp_time", "ctrl.speed_kp", "ctrl.speed_ki", "ctrl.rate_kp",
+               "ctrl.rate_ki", "ctrl.trim_ki")
+
+
+def _rover_kind(rover: str):
+    from cedra.models.rovers import ROVERS
+    if rover not in ROVERS:
+        raise ValueError(f"unknown rover {rover!r} ({', '.join(ROVERS)})")
+    return ROVERS[rover]
+
+
+def rover_params(rover: str, dims: str) -> list[Quantity]:
+    """The parameters of `rover`'s controller: CEDRA's controller's loops (no traction mode) and the geometry its
+    inverse kinematics depends on."""
+    kind = _rover_kind(rover)
+    ours = {q.name: q for q in params()}
+    table = {q.name: q for q in kind.parameters}
+    mode = Quantity("ctrl.mode", 1, "1", "0 equal torques from a PI on the forward speed (straight: the yaw rate "
+                    "command acts in mode 1); 1 inverse kinematics (the rover's wheel Jacobians, skid steering) with "
+                    "a PI loop per wheel rate", 0, len(ROVER_MODES) - 1, type="Integer")
+    trim = ours["ctrl.trim_ki"]
+    trim = Quantity(trim.name, trim.start, trim.unit, "inverse-kinematics mode: integral gain of the speed and "
+                    "yaw-rate trims (0: the inverse kinematics open loop)", trim.min, trim.max)
+    loops = [{"ctrl.trim_ki": trim}.get(n, ours[n]) for n in _ROVER_CTRL]
+    loops.insert(1, mode)                                       # after ctrl.period, as in CEDRA's
+    geometry = [Quantity(n, table[n].start, table[n].unit, table[n].description + " (the controller's kinematics)",
+                         table[n].min, table[n].max) for n in drive_kinematics(kind, dims).params]
+    return loops + geometry
+
+
+def rover_inputs(rover: str, dims: str) -> list[Quantity]:
+    """The controller's inputs: the commands and the plant outputs it measures, with the plant's names."""
+    dk = drive_kinematics(_rover_kind(rover), dims)
+    three = dims == "3d"
+    ins = [Quantity("cmd.v", 0.0, "m/s", "commanded forward speed (along the body's heading)", -5.0, 5.0)]
+    if three:
+        ins.append(Quantity("cmd.yaw_rate", 0.0, "rad/s", "commanded yaw rate (positive turns left; skid steering)",
+                            -5.0, 5.0))
+    ins.append(Quantity("body.vx", 0.0, "m/s", "measured: body velocity along world X"))
+    if three:
+        ins += [Quantity("body.vy", 0.0, "m/s", "measured: body velocity along world Y"),
+                Quantity("body.yaw", 0.0, "rad", "measured: body yaw"),
+                Quantity("body.wx", 0.0, "rad/s", "measured: body angular velocity about world X")]
+    ins.append(Quantity("body.wy", 0.0, "rad/s", "measured: body angular velocity about world Y"))
+    if three:
+        ins.append(Quantity("body.wz", 0.0, "rad/s", "measured: body yaw rate (angular velocity about world Z)"))
+    ins.append(Quantity("body.pitch", 0.0, "rad", "measured: body pitch (positive nose down)"))
+    if three:
+        ins.append(Quantity("body.roll", 0.0, "rad", "measured: body roll"))
+    ins += [Quantity(a, 0.0, "rad", f"measured: joint angle {n}") for n, a in zip(dk.joints, dk.angle_outputs)]
+    ins += [Quantity(r, 0.0, "rad/s", f"measured: joint rate of {n}") for n, r in zip(dk.joints, dk.rate_outputs)
+            if r is not None]
+    for i in WHEELS:
+        ins += [Quantity(f"wheel[{i}].omega", 0.0, "rad/s", f"measured: wheel {i} spin rate"),
+                Quantity(f"wheel[{i}].psi_R", 0.0, "rad", f"measured: wheel {i} contact angle in the rover frame")]
+    return ins
+
+
+def rover_outputs(rover: str, dims: str) -> list[Quantity]:
+    outs = [Quantity(f"tau[{i}]", 0.0, "N.m", f"motor torque command of wheel {i}") for i in WHEELS]
+    outs += [Quantity(f"ctrl.omega_ref[{i}]", 0.0, "rad/s", f"wheel {i} rate from the inverse kinematics (its "
+                      "rolling rate for the trimmed commands)") for i in WHEELS]
+    outs.append(Quantity("ctrl.v", 0.0, "m/s", "measured forward speed the controller used"))
+    return outs
+
+
+def rover_sample_function(rover: str, dims: str) -> ca.Function:
+    """cedra_sample(inp, par, xd) -> (y, xd_next) of `rover`'s controller; xd as in STATES (the loops of CEDRA's
+    modes 0 and 1; the wheel rates from cedra.mechanics.drive_kinematics)."""
+    kind = _rover_kind(rover)
+    dk = drive_kinematics(kind, dims)
+    ins, pars, outs = rover_inputs(rover, dims), rover_params(rover, dims), rover_outputs(rover, dims)
+    inp, par, xd = ca.SX.sym("inp", len(ins)), ca.SX.sym("par", len(pars)), ca.SX.sym("xd", len(STATES))
+    i = {q.name: inp[k] for k, q in enumerate(ins)}
+    p = {q.name: par[k] for k, q in enumerate(pars)}
+    three = dims == "3d"
+    T, lim = p["ctrl.period"], p["ctrl.tau_max"]
+    ramp = ca.if_else(p["ctrl.ramp_time"] > 0, ca.fmin(1, xd[9] / p["ctrl.ramp_time"]), 1)
+    cmd_v = i["cmd.v"] * ramp
+    cmd_yaw = i["cmd.yaw_rate"] * ramp if three else 0
+    v = i["body.vx"] * ca.cos(i["body.yaw"]) + i["body.vy"] * ca.sin(i["body.yaw"]) if three else i["body.vx"]
+    trim_v = ca.fmin(ca.fmax(xd[7] + p["ctrl.trim_ki"] * (cmd_v - v) * T, -TRIM_LIMITS[0]), TRIM_LIMITS[0])
+    trim_w = ca.fmin(ca.fmax(xd[8] + p["ctrl.trim_ki"] * (cmd_yaw - i["body.wz"]) * T, -TRIM_LIMITS[1]),
+                     TRIM_LIMITS[1]) if three else 0
+    zero = ca.SX(0)
+    rates = dk.function(cmd_v + trim_v, cmd_yaw + trim_w, i["body.pitch"], i["body.roll"] if three else zero,
+                        i["body.wx"] if three else zero, i["body.wy"],
+                        ca.vertcat(*[i[a] for a in dk.angle_outputs]),
+                        ca.vertcat(*[i[r] if r is not None else 0 for r in dk.rate_outputs]),
+                        ca.vertcat(*[i[f"wheel[{k}].psi_R"] for k in WHEELS]),
+                        ca.vertcat(*[p[n] for n in dk.params]))
+    speed_tau, speed_int = _pi(cmd_v - v, xd[0], p["ctrl.speed_kp"], p["ctrl.speed_ki"], lim, T)
+    ik = [_pi(rates[k] - i[f"wheel[{k + 1}].omega"], xd[1 + k], p["ctrl.rate_kp"], p["ctrl.rate_ki"], lim, T)
+          for k in range(6)]
+    equal = p["ctrl.mode"] < 0.5
+
+    def pick(a, b):
+        return ca.if_else(equal, a, b)
+
+    tau = [pick(speed_tau, ik[k][0]) for k in range(6)]
+    xd_next = ca.vertcat(pick(speed_int, xd[0]), *[pick(xd[1 + k], ik[k][1]) for k in range(6)],
+                         pick(xd[7], trim_v), pick(xd[8], trim_w), xd[9] + T)
+    y = tau + [rates[k] for k in range(6)] + [v]
+    assert len(y) == len(outs)
+    return ca.Function("cedra_sample", [inp, par, xd], [ca.vertcat(*y), xd_next], ["inp", "par", "xd"],
+                       ["y", "xd_next"])
+
+
+def rover_controller_spec(rover: str, dims: str = "3d", name: str | None = None) -> ModelSpec:
+    """The drive controller of a rover other than CEDRA: modes 0 and 1 with the inverse kinematics of its own
+    description (cedra.mechanics.drive_kinematics); no steering (a turn is skid-steered through the wheel rates)."""
+    kind = _rover_kind(rover)
+    if kind.steering:
+        raise ValueError(f"rover {rover}: a controller for a rover with steering joints is CEDRA's only")
+    spec = ModelSpec(
+        name=name or f"{rover}_drive{dims[0]}d", block="controller",
+        description=f"{rover} drive controller ({dims}): the inverse kinematics of the rover's own description "
+        "(every wheel's rolling rate for the commanded speed and yaw rate at the measured pose, joints and contact "
+        "angles; skid steering) with a PI loop per wheel rate, or equal torques from a speed loop; sampled every "
+        "ctrl.period",
+        q_names=[], z_names=[], params=rover_params(rover, dims), inputs=rover_inputs(rover, dims),
+        outputs=rover_outputs(rover, dims), q_start=[], settle_idx=[],
+        functions={"cedra_sample": rover_sample_function(rover, dims)}, d_names=list(STATES), stop_time=15.0,
         output_interval=0.01)
     spec.check()
     return spec

@@ -29,11 +29,11 @@ def fmu(name: str, build_dir="build") -> Path:
     path = Path(build_dir) / f"{name}.fmu"
     if path.exists():
         return path
-    from cedra.models.controller import CONTROLLERS, controller_spec
+    from cedra.models.controller import CONTROLLERS, shipped_controller
     from cedra.fmu.packaging import build_fmu
     from cedra.models.scene import load_shipped, shipped
     if name in CONTROLLERS:
-        spec = controller_spec(CONTROLLERS[name])
+        spec = shipped_controller(name)
     elif name in shipped():
         spec = load_shipped(name).spec()
     else:
