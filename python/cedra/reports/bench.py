@@ -49,8 +49,8 @@ def compile_functions(fns: dict, names, workdir: Path, rim_refine: bool = False)
     """The named CasADi functions as C (CasADi's code generator), compiled with gcc into one shared library,
     loaded back with casadi.external. A scene with an analytic terrain's contact search (the functions call
     cedra_rim_search) gets fmu_src/rim.c and the terrain functions it calls linked in, as its FMU does (without
-    the FMU's memo of searches: RIM_HOST; rim_refine: the spec's). Heightmap scenes are not supported (their
-    terrain is the FMU's)."""
+    the FMU's memo of searches: RIM_HOST; rim_refine as in the scene's FMU). Heightmap scenes are not supported
+    (their terrain is the FMU's)."""
     rim = [n for n in RIM_FUNCTIONS if n in fns]
     cg = ca.CodeGenerator("bench_fns.c", {"with_header": False})
     for n in list(names) + rim:
