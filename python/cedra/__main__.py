@@ -100,6 +100,8 @@ def cmd_report(args):
         from cedra.reports import defaults as r
     elif args.which == "figures":
         from cedra.reports import figures as r
+    elif args.which == "rovers":
+        from cedra.reports import rovers as r
     else:
         from cedra.reports import stability as r
     return r.main(args)
@@ -163,8 +165,9 @@ def main(argv=None):
     be.add_argument("--step-cost", action="store_true",
                     help="only the cost of one implicit step: rodas4 dense against reduced (Schur) stage solve, "
                          "ros34pw2")
-    r = sub.add_parser("report", help="work-precision, stability, defaults report, or the docs' other figures")
-    r.add_argument("which", choices=["precision", "stability", "defaults", "figures"])
+    r = sub.add_parser("report", help="work-precision, stability, defaults, rovers (CEDRA against the rocker-bogie) "
+                       "report, or the docs' other figures")
+    r.add_argument("which", choices=["precision", "stability", "defaults", "figures", "rovers"])
     r.add_argument("--build", default="build")
     r.add_argument("--out", default="out/report")
     r.add_argument("--quick", action="store_true", help="a small subset (what the tests run)")

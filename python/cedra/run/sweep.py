@@ -6,6 +6,7 @@ outputs to keep per run and where to write them:
 
     scene = "bump2d"                 # a shipped scene, or a scene file (relative to the sweep file); or instead
     # scenario = "turn_flat"         # a scenario script of examples/ that declares PARAMETERS, SUMMARY and FMUS
+    #                                  (names, or (scene, {options}) for a variant: cedra.run.scenario.fmu)
     stop_time = 15.0                 # s simulated per run (default: the scene's)
     outputs = ["climbed", "t_over", "peak_Fn", "final_x"]     # default: all of OUTPUTS
     out = "out/climb"                # the table: <out>/<name>.csv (relative to the working directory)
@@ -32,7 +33,8 @@ any run (and before any build) naming the file, the key and the reason.
 [options] makes a variant of the scene: its file parsed again with those keys set (the scene's own checks apply:
 drives with locked_wheels fails, for instance), under its own model name (<scene>_drives; <scene>_nodrives for
 drives = false on a scene that has them), built into <build>/variants/ and rebuilt only when its model or the FMU
-sources changed. The options are part of every run's id, so the runs of two variants never mix in a table.
+sources changed. The options are part of every run's id, so the runs of two variants never mix in a table. A
+scene file's FMU is kept the same way, in <build>/scenes/.
 
 Runs execute on Dask: a LocalCluster with one single-threaded worker process per core by default, or an existing
 cluster with --scheduler (the same code; the workers need this package installed, e.g. `pip install -e .` in a
@@ -231,7 +233,8 @@ class Target:
     outputs: dict         # output -> meaning
     stop_time: float      # default
     scene: object = None  # kind "scene": the Scene (with options: the variant)
-    fmus: tuple = ()      # kind "scenario": the FMUs its run() opens (built before the runs start)
+    fmus: tuple = ()      # kind "scenario": the FMUs its run() opens (built before the runs start; a (scene,
+    #                       {options}) entry is a variant, cedra.run.scenario.fmu)
     options: dict = field(default_factory=dict)    # kind "scene": the sweep file's [options]
     variant: bool = False  # kind "scene": the options changed the scene: build target.scene, not the shipped FMU
 
@@ -637,8 +640,9 @@ def execute(sw: Sweep, build_dir="build", scheduler: str | None = None, workers:
                                      pure=False): (i, p) for i, p in todo}
         else:
             from cedra.run.scenario import fmu
-            for name in sw.target.fmus:          # built here, once, not by several workers at a time
-                fmu(name, build_dir)
+            for entry in sw.target.fmus:         # built here, once, not by several workers at a time
+                name, options = entry if isinstance(entry, tuple) else (entry, None)
+                fmu(name, build_dir, options)
             build = str(Path(build_dir).resolve())
             futures = {client.submit(run_scenario, sw.target.name, build, p, sw.stop_time, sw.outputs,
                                      key=f"run-{i}", pure=False): (i, p) for i, p in todo}
@@ -673,8 +677,21 @@ def _build(sw: Sweep, build_dir) -> Path:
         return _variant_fmu(sw.target.scene, Path(build_dir) / "variants")
     if sw.target.name in shipped():
         return fmu(sw.target.name, build_dir)
-    from cedra.fmu.packaging import build_fmu
-    return build_fmu(sw.target.scene.spec(), build_dir)
+    # a scene file's FMU, like a variant's, is built once and kept while it is the same build
+    return _variant_fmu(sw.target.scene, Path(build_dir) / "scenes")
+
+
+def variant_fmu(name: str, options: dict, build_dir="build") -> Path:
+    """The FMU of shipped scene `name` with these [options] (a scenario's plant): <build_dir>/variants/<variant>.fmu,
+    built unless up to date; the scene's own FMU where the options change nothing."""
+    from cedra.run.scenario import ScenarioError, fmu
+    where = Path(f"<scene {name}>")
+    try:
+        scene = _scene(where, name)
+        var = variant(where, scene, _options(where, options))
+    except SweepError as e:
+        raise ScenarioError(str(e)) from e
+    return fmu(name, build_dir) if var is scene else _variant_fmu(var, Path(build_dir) / "variants")
 
 
 def _variant_fmu(scene, build_dir: Path) -> Path:

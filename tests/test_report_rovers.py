@@ -1,0 +1,73 @@
+"""`python -m cedra report rovers --quick`: the paper's run for both rovers and both controllers (the climbing maps,
+eight sweeps of 20-28 runs each, are the full report's: `python -m cedra report rovers`)."""
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cedra.reports import rovers as R
+from fmu_harness import shipped_fmu
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    build = tmp_path_factory.mktemp("rovers_build")
+    for name in ("bump2d", "rb_bump2d", "drive2d", "rb_drive2d"):       # the shipped FMUs, where the report finds them
+        (build / f"{name}.fmu").symlink_to(shipped_fmu(name, tmp_path_factory))
+    out = tmp_path_factory.mktemp("rovers_out")
+    args = argparse.Namespace(build=str(build), out=str(out), quick=True, quiet=True)
+    assert R.main(args) == 0
+    return out
+
+
+def rows_of(out: Path) -> dict:
+    """The measures table of rovers.md as {(rover, controller, terrain): row}."""
+    lines = (out / "rovers.md").read_text().splitlines()
+    head = next(k for k, line in enumerate(lines) if line.startswith("| rover | controller"))
+    names = [c.strip() for c in lines[head].strip("|").split("|")]
+    rows = {}
+    for line in lines[head + 2:]:
+        if not line.startswith("|"):
+            break
+        cells = dict(zip(names, (c.strip() for c in line.strip("|").split("|"))))
+        rows[(cells["rover"], cells["controller"], cells["terrain"])] = cells
+    return rows
+
+
+def test_both_rovers_over_the_paper_bump_with_both_controllers(report):
+    rows = rows_of(report)
+    assert len(rows) == 8
+    for rover in R.ROVERS:
+        for controller in R.CONTROLLERS:
+            over = rows[(rover, controller, "bump")]["last wheel past the bump"]
+            assert over.endswith(" s") and 5.0 < float(over[:-2]) < 15.0, (rover, controller, over)
+
+
+def test_the_rocker_bogie_spreads_its_load_evenly_and_cedra_does_not(report):
+    """On flat ground the rocker-bogie's lever arms give six equal loads (max / min 1 to 1 %); CEDRA's design
+    puts less on its front and rear wheels (5, 6) than on the bogies'."""
+    rows = rows_of(report)
+    for controller in R.CONTROLLERS:
+        assert float(rows[("rocker-bogie", controller, "flat")]["load spread max/min (5-15 s)"]) < 1.01
+        assert float(rows[("CEDRA", controller, "flat")]["load spread max/min (5-15 s)"]) > 2.0
+
+
+def test_over_the_bump_the_rocker_bogie_loads_its_wheels_less(report):
+    rows = rows_of(report)
+    for controller in R.CONTROLLERS:
+        rb, cedra = rows[("rocker-bogie", controller, "bump")], rows[("CEDRA", controller, "bump")]
+        assert float(rb["peak Fn (N)"]) < 0.5 * float(cedra["peak Fn (N)"])
+    # the inverse kinematics cuts CEDRA's slip on the bump (its light wheels spin under equal torques)
+    assert float(rows[("CEDRA", "inverse kinematics", "bump")]["mean slip (m/s)"]) < \
+        0.2 * float(rows[("CEDRA", "equal torques", "bump")]["mean slip (m/s)"])
+
+
+def test_highest_over_per_friction():
+    rows = [dict(mu="0.8", terrain_h=str(h), verdict=v) for h, v in
+            ((0.0, "over"), (0.065, "over"), (0.13, "stuck"), (0.195, "over"), (0.26, "hung up"))]
+    rows += [dict(mu="0.4", terrain_h=str(h), verdict="stuck") for h in (0.0, 0.065)]
+    best = R.highest_over(rows)
+    assert best[0.8] == (0.195, False)          # 3 R_w over, but 2 R_w below it is not
+    assert np.isnan(best[0.4][0])
+
