@@ -44,6 +44,9 @@ GOOD = 'scene = "bump2d"\nobjective = "energy"\nmargin = 0.4\ninterval = 0.1\n'
     (GOOD + "[solver]\nsmoothing = [0.1]\n", "solver.smoothing", "must be <="),
     (GOOD + "[solver]\nsmoothing = [1e-4, 1e-3]\n", "solver.smoothing", "must decrease"),
     (GOOD + "[solver]\nsmoothing = [1e-4, 1e-4]\n", "solver.smoothing", "must decrease"),
+    (GOOD + "[solver]\nsmoothing = [1e-4, 0.0]\nproximal = [0.1, 0.01, 0.0]\n", "solver.proximal",
+     "one weight per smoothing stage"),
+    (GOOD + "[solver]\nproximal = [0.1, -1.0]\n", "solver.proximal", "must be >= 0"),
 ])
 def test_bad_problem_names_file_and_key(tmp_path, text, key, reason):
     path = tmp_path / "bad.toml"
@@ -97,13 +100,12 @@ def test_smoothed_contact_law_tends_to_the_fmus():
     D, V = (a.ravel() for a in np.meshgrid(np.linspace(-0.01, 0.01, 401), np.linspace(-0.5, 0.5, 201)))
     exact = np.array(law(D, V)).ravel()
     assert np.array_equal(np.array(smooth(D, V, 0.0)[0]).ravel(), exact)
-    errors = []
     for w in (1e-4, 1e-5, 1e-6):
         far = (np.abs(D) > 30 * w) & (np.abs(k * D - d * V) > 30 * k * w)
         value = np.array(smooth(D, V, w)[0]).ravel()
         assert np.all(value >= 0) and np.all(np.isfinite(value))
-        errors.append(np.max(np.abs(value - exact)[far]))
-        assert errors[-1] < 1e-9 * k * w + 1e-9, (w, errors[-1])      # e^-30 of the force width k w
+        error = np.max(np.abs(value - exact)[far])
+        assert error < 1e-9 * k * w + 1e-9, (w, error)      # e^-30 of the force width k w
         assert np.max(np.abs(value - exact)) <= k * w * np.log(2) + d * 0.5 / 2 + 1e-9
     # smooth: across the clip at v_n = 0.1 m/s (delta = d v_n / k) the slope in the depth rises from 0 to k over a
     # few widths, not at once

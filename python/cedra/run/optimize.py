@@ -49,8 +49,12 @@ with the same peak or time. Terminal condition: body.x >= terrain_x0 + margin at
 Contact non-smoothness: the compliant law's normal force max(0, k delta - d v_n) and its onset at delta = 0 are
 kinks and a jump in the state derivative; the friction law is already regularized by v_eps. The integrator
 crosses them with error control (the FMU locates them; CVODES shortens its steps), and the sensitivities carry no
-jump term at a switch. No smoothing is applied: the optimizer works on the FMU's equations unchanged, which is
-what makes the open-loop replay agree (measured and reported, see docs/optimize.md).
+jump term at a switch. `solver.smoothing` replaces them, in the optimizer's equations only, by the smoothed law
+of contact.compliant_law (a softplus of the clip and a sigmoid of the onset over a depth width w, w = 0 the FMU's
+law exactly), and solves a continuation: one stage per width, each started from the previous stage's decisions
+and multipliers. The width is an input of the compiled equations, so one library serves every stage; the FMUs
+are generated without it. The replay integrates the FMU's own law, so with a last width > 0 its deviation from the
+optimizer's path measures the smoothing too (docs/optimize.md).
 
 Problem files (TOML), checked before anything runs, each error naming the file, the key and the reason:
 
@@ -67,14 +71,17 @@ Problem files (TOML), checked before anything runs, each error naming the file, 
     regularization = 1e-3           # weight of energy added to peak_friction and time
     [inputs]                        # the scene's inputs for this problem (terrain_h, mu, ...; not the torques)
     [solver]
-    max_iter = 200                  # IPOPT iterations
+    max_iter = 200                  # IPOPT iterations (of each stage)
     tol = 1e-6                      # IPOPT tolerance
     integrator_tol = 1e-8           # CVODES abstol = reltol of the shooting integrator
     threads = 1                     # the shooting intervals integrated on this many threads (CasADi map)
     hessian = "objective"           # objective: the objective's own Hessian (generalized Gauss-Newton) |
                                     # limited-memory: IPOPT's quasi-Newton approximation
     proximal = 0.0                  # hessian = "objective": this times the identity on the node states added
-                                    # (shorter steps where the contact makes the linearization poor)
+                                    # (shorter steps where the contact makes the linearization poor; a list:
+                                    # one weight per smoothing stage)
+    smoothing = [0.0]               # m: the contact law's smoothing width of each continuation stage, strictly
+                                    # decreasing, each in [0, 0.01]; 0 is the FMU's law
 """
 from __future__ import annotations
 
@@ -131,7 +138,7 @@ class Problem:
     integrator_tol: float = 1e-8
     threads: int = 1
     hessian: str = "objective"
-    proximal: float = 0.0
+    proximal: tuple = (0.0,)
     smoothing: tuple = (0.0,)
     path: str = ""
 
@@ -204,7 +211,8 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
         elif key == "hessian":
             problem.hessian = _choice(path, k, value, HESSIANS)
         elif key == "proximal":
-            problem.proximal = _number(path, k, value, 0.0, 1e3)
+            values = value if isinstance(value, list) and value else [value]
+            problem.proximal = tuple(_number(path, k, v, 0.0, 1e3) for v in values)
         elif key == "smoothing":
             problem.smoothing = _widths(path, k, value)
         elif key == "threads":
@@ -213,6 +221,9 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
             problem.threads = value
         else:
             _fail(path, k, f"unknown key (known: {', '.join(sorted(SOLVER_KEYS))})")
+    if len(problem.proximal) not in (1, len(problem.smoothing)):
+        _fail(path, "solver.proximal", f"a list must give one weight per smoothing stage "
+              f"({len(problem.smoothing)}), got {len(problem.proximal)}")
     return problem
 
 
@@ -481,7 +492,7 @@ def initial_guess(names, rows, n: int, dt: float):
 
 
 def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float, goal_x: float,
-          log: bool = False, warm: dict | None = None) -> dict:
+          log: bool = False, warm: dict | None = None, proximal: float = 0.0) -> dict:
     """Multiple shooting: decisions X_0..X_N (shooting states, X_0 fixed at x0), U_0..U_{N-1} (four torques
     each), the interval length dt (free for the time objective), the epigraph s (peak_friction), on the equations
     at the contact law's smoothing width dyn.width. The intervals are integrated on `problem.threads` threads.
@@ -533,7 +544,7 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
             warm_opts = {"warm_start_init_point": "yes", "mu_init": 1e-4, "warm_start_bound_push": 1e-6,
                          "warm_start_mult_bound_push": 1e-6}
     nlp = {"x": w, "f": J, "g": ca.vertcat(*g)}
-    hessian = {"hess_lag": _objective_hessian(w, J, nlp["g"].numel(), nx * (n + 1), problem.proximal)} \
+    hessian = {"hess_lag": _objective_hessian(w, J, nlp["g"].numel(), nx * (n + 1), proximal)} \
         if problem.hessian == "objective" else {}
     opts = {"ipopt": {"max_iter": problem.max_iter, "tol": problem.tol,
                       "hessian_approximation": "exact" if hessian else "limited-memory",
@@ -542,7 +553,10 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
                       # docstring), which keeps the dual infeasibility at 1e-3..1e-2 near the optimum: stop there
                       # once the objective has levelled off, with the shooting defects closed
                       "acceptable_tol": 1e-2, "acceptable_iter": 3, "acceptable_obj_change_tol": 1e-3,
-                      "acceptable_constr_viol_tol": 1e-5, **warm_opts}, "print_time": False, **hessian}
+                      "acceptable_constr_viol_tol": 1e-5,
+                      # the filter accepts no trial point whose constraint violation (1-norm) exceeds the start's
+                      # (at least 1): the Gauss-Newton steps otherwise trade a large violation for objective
+                      "theta_max_fact": 1.0, **warm_opts}, "print_time": False, **hessian}
     solver = ca.nlpsol("climb", "ipopt", nlp, opts)
     t0 = time.perf_counter()
     lbg, ubg = np.concatenate(lbg), np.concatenate(ubg)
@@ -638,9 +652,10 @@ def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
         dyn.width = width
         if len(problem.smoothing) > 1:
             say(f"stage {len(stages) + 1}/{len(problem.smoothing)}: contact smoothing width {width:g} m")
-        result = solve(problem, dyn, x0, X_guess, U_guess, dt, goal_x, log=not quiet, warm=result)
+        proximal = problem.proximal[min(len(stages), len(problem.proximal) - 1)]
+        result = solve(problem, dyn, x0, X_guess, U_guess, dt, goal_x, log=not quiet, warm=result, proximal=proximal)
         stages.append({k: result[k] for k in ("width", "status", "iterations", "wall", "objective", "violation",
-                                              "success")})
+                                              "success")} | {"proximal": proximal})
         say(f"IPOPT: {result['status']} after {result['iterations']} iterations, {result['wall']:.1f} s, "
             f"constraint violation {result['violation']:.1e}, objective {result['objective']:.6g}")
     replay_names, replay_rows, replay_ok = replay(problem, dyn, x0, result["U"], result["dt"], build_dir)
@@ -754,10 +769,11 @@ def _stage_lines(stages) -> list[str]:
     if len(stages) < 2:
         return []
     lines = ["Continuation (each stage started from the previous one's solution and multipliers):", "",
-             "| stage | smoothing width [m] | IPOPT | iterations | time [s] | constraint violation | objective |",
-             "|---|---|---|---|---|---|---|"]
+             "| stage | smoothing width [m] | proximal | IPOPT | iterations | time [s] | constraint violation "
+             "| objective |", "|---|---|---|---|---|---|---|---|"]
     for k, st in enumerate(stages):
-        lines.append(f"| {k + 1} | {st['width']:g} | {st['status']} | {st['iterations']} | {st['wall']:.1f} "
+        lines.append(f"| {k + 1} | {st['width']:g} | {st['proximal']:g} | {st['status']} | {st['iterations']} "
+                     f"| {st['wall']:.1f} "
                      f"| {st['violation']:.1e} | {st['objective']:.6g} |")
     return lines + [""]
 
