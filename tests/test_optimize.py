@@ -38,6 +38,15 @@ GOOD = 'scene = "bump2d"\nobjective = "energy"\nmargin = 0.4\ninterval = 0.1\n'
     (GOOD + "[solver]\nmethod = \"sqp\"\n", "solver.method", "unknown key"),
     (GOOD + "[solver]\nhessian = \"bfgs\"\n", "solver.hessian", "must be one of"),
     (GOOD + "[solver]\nthreads = 0\n", "solver.threads", "expected an integer"),
+    (GOOD + "[solver]\nsmoothing = 1e-4\n", "solver.smoothing", "expected a non-empty list"),
+    (GOOD + "[solver]\nsmoothing = []\n", "solver.smoothing", "expected a non-empty list"),
+    (GOOD + "[solver]\nsmoothing = [1e-4, -1e-5]\n", "solver.smoothing", "must be >= 0"),
+    (GOOD + "[solver]\nsmoothing = [0.1]\n", "solver.smoothing", "must be <="),
+    (GOOD + "[solver]\nsmoothing = [1e-4, 1e-3]\n", "solver.smoothing", "must decrease"),
+    (GOOD + "[solver]\nsmoothing = [1e-4, 1e-4]\n", "solver.smoothing", "must decrease"),
+    (GOOD + "[solver]\nsmoothing = [1e-4, 0.0]\nproximal = [0.1, 0.01, 0.0]\n", "solver.proximal",
+     "one weight per smoothing stage"),
+    (GOOD + "[solver]\nproximal = [0.1, -1.0]\n", "solver.proximal", "must be >= 0"),
 ])
 def test_bad_problem_names_file_and_key(tmp_path, text, key, reason):
     path = tmp_path / "bad.toml"
@@ -74,6 +83,44 @@ def test_shipped_problems_load():
     for f in files:
         p = optimize.load(f)
         assert p.objective in optimize.OBJECTIVES
+
+
+def test_smoothed_contact_law_tends_to_the_fmus():
+    """The optimizer's smoothed normal force (contact.compliant_law with a width) is the FMU's law exactly at width
+    0, tends to it as the width goes to 0 away from its switches (the clip k delta = d v_n and the onset delta = 0),
+    and is smooth across them: its slope in the depth changes by no more than the law's own over a width."""
+    import casadi as ca
+    from cedra.mechanics.contact import compliant_law
+    k, d = 1e5, 600.0
+    depth, v_n, width = ca.SX.sym("depth"), ca.SX.sym("v_n"), ca.SX.sym("width")
+    n, v = ca.DM([0, 0, 1]), ca.vertcat(0.05, 0, v_n)
+    law = ca.Function("law", [depth, v_n], [compliant_law(depth, n, v, k, d, 0.8, 0.01)[0]])
+    fn = compliant_law(depth, n, v, k, d, 0.8, 0.01, width)[0]
+    smooth = ca.Function("smooth", [depth, v_n, width], [fn, ca.jacobian(fn, depth)])
+    D, V = (a.ravel() for a in np.meshgrid(np.linspace(-0.01, 0.01, 401), np.linspace(-0.5, 0.5, 201)))
+    exact = np.array(law(D, V)).ravel()
+    assert np.array_equal(np.array(smooth(D, V, 0.0)[0]).ravel(), exact)
+    for w in (1e-4, 1e-5, 1e-6):
+        far = (np.abs(D) > 30 * w) & (np.abs(k * D - d * V) > 30 * k * w)
+        value = np.array(smooth(D, V, w)[0]).ravel()
+        assert np.all(value >= 0) and np.all(np.isfinite(value))
+        error = np.max(np.abs(value - exact)[far])
+        assert error < 1e-9 * k * w + 1e-9, (w, error)      # e^-30 of the force width k w
+        assert np.max(np.abs(value - exact)) <= k * w * np.log(2) + d * 0.5 / 2 + 1e-9
+    # smooth: across the clip at v_n = 0.1 m/s (delta = d v_n / k) the slope in the depth rises from 0 to k over a
+    # few widths, not at once
+    w = 1e-4
+    at = np.linspace(-5 * w, 5 * w, 11) + d * 0.1 / k
+    slope = np.array(smooth(at, 0.1 + 0 * at, w)[1]).ravel()
+    assert np.all(np.diff(slope) > 0) and slope[0] < 0.01 * k and slope[-1] > 0.99 * k
+    assert np.max(np.diff(slope)) < 0.3 * k
+
+
+def test_smoothed_model_forms_no_fmu():
+    from cedra.models.plant import CedraModel
+    from cedra.models.scene import load_shipped
+    with pytest.raises(ValueError, match="smoothed contact law"):
+        CedraModel(load_shipped("bump2d").options, smooth_contact=True).spec("bump2d")
 
 
 def test_short_solve_converges_and_replays(tmp_path):

@@ -212,21 +212,36 @@ def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None):
     return geos, present
 
 
-def compliant_law(depth, n, v_point, ground_k, ground_d, mu, v_eps):
+def softplus(x, width):
+    """width log(1 + exp(x / width)): a smooth max(0, x), within width log 2 of it and tending to it as width -> 0
+    (written max(x, 0) + width log(1 + exp(-|x| / width)), which never overflows and is as smooth as the sum)."""
+    return ca.fmax(x, 0) + width * ca.log1p(ca.exp(-ca.fabs(x) / width))
+
+
+def compliant_law(depth, n, v_point, ground_k, ground_d, mu, v_eps, width=None):
     """The paper's ground flexibility at a point with penetration depth, unit normal n and velocity v_point:
     (F_n, F_t, v_n, v_t) with F_n = max(0, k delta - d v_n) (0 where delta <= 0) and
-    F_t = -mu F_n v_t / sqrt(|v_t|^2 + v_eps^2). A wheel's contacts and the chassis points share it."""
+    F_t = -mu F_n v_t / sqrt(|v_t|^2 + v_eps^2). A wheel's contacts and the chassis points share it.
+
+    width (m, a symbol or a number >= 0): the smoothed law the optimizer may integrate instead (never an FMU's),
+    F_n = k softplus_w(delta - (d / k) v_n sigmoid(delta / w)): the clip a softplus, the damping's onset at
+    delta = 0 a sigmoid, both over the depth width w, so that F_n is infinitely differentiable in the state. It
+    tends to the law above as w -> 0 wherever delta != 0; w = 0 is the law above exactly."""
     v_n = ca.dot(v_point, n)
     v_t = v_point - v_n * n
     Fn = ca.if_else(depth > 0, ca.fmax(0, ground_k * depth - ground_d * v_n), 0)
+    if width is not None:
+        w = ca.if_else(width > 0, width, 1)
+        onset = 0.5 * (1 + ca.tanh(depth / (2 * w)))           # the logistic sigmoid of depth / w
+        Fn = ca.if_else(width > 0, ground_k * softplus(depth - ground_d / ground_k * v_n * onset, w), Fn)
     Ft = -mu * Fn * v_t / ca.sqrt(ca.dot(v_t, v_t) + v_eps ** 2)
     return Fn, Ft, v_n, v_t
 
 
-def compliant_force(geo: ContactGeometry, v_point, ground_k, ground_d, mu, v_eps):
+def compliant_force(geo: ContactGeometry, v_point, ground_k, ground_d, mu, v_eps, width=None):
     """Force on the wheel at the contact point (world) and its contact-frame components (Fn, Fx, Fy), the
-    tangential slip velocity's norm, and the contact flag (compliant_law)."""
-    Fn, Ft, _, v_t = compliant_law(geo.depth, geo.normal, v_point, ground_k, ground_d, mu, v_eps)
+    tangential slip velocity's norm, and the contact flag (compliant_law; width: its smoothed form)."""
+    Fn, Ft, _, v_t = compliant_law(geo.depth, geo.normal, v_point, ground_k, ground_d, mu, v_eps, width)
     force = Fn * geo.normal + Ft
     return force, Fn, ca.dot(Ft, geo.frame[:, 0]), ca.dot(Ft, geo.frame[:, 1]), ca.norm_2(v_t), geo.depth > 0
 

@@ -112,9 +112,11 @@ def _out(name, unit, description, type="Real"):
 class CedraModel:
     """The rover's equations for one set of scene options. Symbolic pieces are public for tests."""
 
-    def __init__(self, opt: ModelOptions, symbolic_rim: bool = False):
+    def __init__(self, opt: ModelOptions, symbolic_rim: bool = False, smooth_contact: bool = False):
         """symbolic_rim: a heightmap scene's rim search formed symbolically instead of the C search (the
-        reference the tests compare the C search against; see terrain.Terrain)."""
+        reference the tests compare the C search against; see terrain.Terrain). smooth_contact: the compliant law's
+        smoothed form (contact.compliant_law) with its width the free symbol contact_width, for the optimizer's
+        own equations (cedra.run.optimize); no FMU is formed with it."""
         if opt.contact not in ("compliant", "rigid"):
             raise ValueError(f"unknown contact model {opt.contact!r} (compliant or rigid)")
         if opt.drives and opt.locked_wheels:
@@ -125,6 +127,7 @@ class CedraModel:
         self.idx = self.kind.index
         self.rigid = opt.contact == "rigid"
         self.symbolic_rim = symbolic_rim
+        self.contact_width = ca.SX.sym("contact_width") if smooth_contact else None
         self.opt = opt
         self.q_names, self.P = projection(opt)
         n = len(self.q_names)
@@ -243,7 +246,8 @@ class CedraModel:
                 lam = self._rigid_contact(contact_frame(lateral, n).T @ v, -depth)["lam"]
                 out.append(dict(link=pt.link, weight=1, depth=depth, Fn=lam[2], v_n=ca.dot(v, n)))
                 continue
-            Fn, Ft, v_n, _ = compliant_law(depth, n, v, p["ground_k"], p["ground_d"], i_["mu"], p["v_eps"])
+            Fn, Ft, v_n, _ = compliant_law(depth, n, v, p["ground_k"], p["ground_d"], i_["mu"], p["v_eps"],
+                                           self.contact_width)
             out.append(dict(link=pt.link, weight=weight, depth=depth, Fn=Fn, v_n=v_n,
                             Q=ca.jacobian(v, self.u).T @ (weight * (Fn * n + Ft))))
         return out
@@ -320,7 +324,7 @@ class CedraModel:
                 part |= dict(force=geo.frame @ lam, Fn=lam[2], Fx=lam[0], Fy=lam[1], slip=ca.norm_2(vc[0:2]))
             else:
                 force, Fn, Fx, Fy, slip, _ = compliant_force(geo, v_point, p["ground_k"], p["ground_d"], i_["mu"],
-                                                           p["v_eps"])
+                                                           p["v_eps"], self.contact_width)
                 self.kane.add_point_force(v_point, force, ca.substitute(ca.jacobian(v_at, self.u), at, geo.point))
                 part |= dict(force=force, Fn=Fn, Fx=Fx, Fy=Fy, slip=slip)
             parts.append(part)
@@ -616,6 +620,8 @@ class CedraModel:
         return ca.vertcat(*[level[k] - lower if nm == "z" else level[k] for k, nm in enumerate(names)])
 
     def spec(self, name: str, description: str = "", **kw) -> ModelSpec:
+        if self.contact_width is not None:
+            raise ValueError("the smoothed contact law is the optimizer's; an FMU integrates the compliant law itself")
         outs = [qq for qq, _ in self.outputs()] + [
             _out("energy.kinetic", "J", "kinetic energy"),
             _out("energy.potential", "J",

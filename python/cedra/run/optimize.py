@@ -49,8 +49,12 @@ with the same peak or time. Terminal condition: body.x >= terrain_x0 + margin at
 Contact non-smoothness: the compliant law's normal force max(0, k delta - d v_n) and its onset at delta = 0 are
 kinks and a jump in the state derivative; the friction law is already regularized by v_eps. The integrator
 crosses them with error control (the FMU locates them; CVODES shortens its steps), and the sensitivities carry no
-jump term at a switch. No smoothing is applied: the optimizer works on the FMU's equations unchanged, which is
-what makes the open-loop replay agree (measured and reported, see docs/optimize.md).
+jump term at a switch. `solver.smoothing` replaces them, in the optimizer's equations only, by the smoothed law
+of contact.compliant_law (a softplus of the clip and a sigmoid of the onset over a depth width w, w = 0 the FMU's
+law exactly), and solves a continuation: one stage per width, each started from the previous stage's decisions
+and multipliers. The width is an input of the compiled equations, so one library serves every stage; the FMUs
+are generated without it. The replay integrates the FMU's own law, so with a last width > 0 its deviation from the
+optimizer's path measures the smoothing too (docs/optimize.md).
 
 Problem files (TOML), checked before anything runs, each error naming the file, the key and the reason:
 
@@ -67,14 +71,17 @@ Problem files (TOML), checked before anything runs, each error naming the file, 
     regularization = 1e-3           # weight of energy added to peak_friction and time
     [inputs]                        # the scene's inputs for this problem (terrain_h, mu, ...; not the torques)
     [solver]
-    max_iter = 200                  # IPOPT iterations
+    max_iter = 200                  # IPOPT iterations (of each stage)
     tol = 1e-6                      # IPOPT tolerance
     integrator_tol = 1e-8           # CVODES abstol = reltol of the shooting integrator
     threads = 1                     # the shooting intervals integrated on this many threads (CasADi map)
     hessian = "objective"           # objective: the objective's own Hessian (generalized Gauss-Newton) |
                                     # limited-memory: IPOPT's quasi-Newton approximation
     proximal = 0.0                  # hessian = "objective": this times the identity on the node states added
-                                    # (shorter steps where the contact makes the linearization poor)
+                                    # (shorter steps where the contact makes the linearization poor; a list:
+                                    # one weight per smoothing stage)
+    smoothing = [0.0]               # m: the contact law's smoothing width of each continuation stage, strictly
+                                    # decreasing, each in [0, 0.01]; 0 is the FMU's law
 """
 from __future__ import annotations
 
@@ -102,8 +109,10 @@ ARRIVAL_TOL = 1e-4           # m: the goal counts as reached this close (the opt
 FN_MIN = 1.0                 # N: a wheel counts in the friction ratio while it carries more than this
 TOP_KEYS = {"name", "scene", "objective", "margin", "interval", "horizon", "torque_max", "start_x", "guess", "speed",
             "regularization", "inputs", "solver"}
-SOLVER_KEYS = {"max_iter", "tol", "integrator_tol", "threads", "hessian", "proximal"}
+SOLVER_KEYS = {"max_iter", "tol", "integrator_tol", "threads", "hessian", "proximal", "smoothing"}
+SMOOTHING_MAX = 0.01         # m: the largest smoothing width of the contact law a problem may give
 HESSIANS = ("objective", "limited-memory")
+WARM_DUALS = True            # a continuation stage starts from the previous one's multipliers too
 
 
 class ProblemError(ValueError):
@@ -129,7 +138,8 @@ class Problem:
     integrator_tol: float = 1e-8
     threads: int = 1
     hessian: str = "objective"
-    proximal: float = 0.0
+    proximal: tuple = (0.0,)
+    smoothing: tuple = (0.0,)
     path: str = ""
 
 
@@ -201,14 +211,31 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
         elif key == "hessian":
             problem.hessian = _choice(path, k, value, HESSIANS)
         elif key == "proximal":
-            problem.proximal = _number(path, k, value, 0.0, 1e3)
+            values = value if isinstance(value, list) and value else [value]
+            problem.proximal = tuple(_number(path, k, v, 0.0, 1e3) for v in values)
+        elif key == "smoothing":
+            problem.smoothing = _widths(path, k, value)
         elif key == "threads":
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:
                 _fail(path, k, f"expected an integer in 1..64, got {value!r}")
             problem.threads = value
         else:
             _fail(path, k, f"unknown key (known: {', '.join(sorted(SOLVER_KEYS))})")
+    if len(problem.proximal) not in (1, len(problem.smoothing)):
+        _fail(path, "solver.proximal", f"a list must give one weight per smoothing stage "
+              f"({len(problem.smoothing)}), got {len(problem.proximal)}")
     return problem
+
+
+def _widths(path, key, value) -> tuple:
+    """The continuation's smoothing widths (m): a non-empty list, each in [0, SMOOTHING_MAX], strictly
+    decreasing (each stage starts from the previous one's solution on a law nearer the FMU's)."""
+    if not isinstance(value, list) or not value:
+        _fail(path, key, f"expected a non-empty list of widths in m, e.g. [1e-3, 1e-4, 0.0], got {value!r}")
+    widths = tuple(_number(path, key, v, 0.0, SMOOTHING_MAX) for v in value)
+    if any(b >= a for a, b in zip(widths, widths[1:])):
+        _fail(path, key, f"the widths must decrease from stage to stage, got {list(widths)}")
+    return widths
 
 
 def _inputs(path, table, scene) -> dict:
@@ -254,8 +281,11 @@ class Dynamics:
     problem's constant inputs and parameters."""
 
     def __init__(self, problem: Problem):
+        from cedra.models.plant import CedraModel
         self.scene = load_shipped(problem.scene)
-        self.model = m = self.scene.model()
+        # the scene's equations with the contact law's smoothing width a free input (0: the FMU's law exactly)
+        self.model = m = CedraModel(self.scene.options, smooth_contact=True)
+        self.width = 0.0            # m: the smoothing width the equations below are evaluated at
         self.par = m.default_par(**self.scene.parameters)
         self.inp = m.default_inp(**(self.scene.inputs | problem.inputs))
         self.nq = m.q.numel()
@@ -274,16 +304,17 @@ class Dynamics:
         f = m.f + (m.chassis_force if m.chassis else 0)
         ode = ca.vertcat(m.u, ca.solve(m.M, f))
         jac = ca.jacobian(ode, ca.vertcat(x, m.inp))
-        body = ca.Function("opt_ode", [x, m.inp, m.par, frozen], [ode], {"cse": True})
+        width = m.contact_width
+        body = ca.Function("opt_ode", [x, m.inp, m.par, frozen, width], [ode], {"cse": True})
         # CasADi's name for the derivative of an external: jac_<name>(inputs, outputs) -> d outputs / d inputs
-        body_jac = ca.Function("jac_opt_ode", [x, m.inp, m.par, frozen, ca.SX.sym("out", self.nx)],
+        body_jac = ca.Function("jac_opt_ode", [x, m.inp, m.par, frozen, width, ca.SX.sym("out", self.nx)],
                                [jac[:, :self.nx], jac[:, self.nx:], ca.SX(self.nx, self.par.size),
-                                ca.SX(self.nx, frozen.numel())], {"cse": True})
+                                ca.SX(self.nx, frozen.numel()), ca.SX(self.nx, 1)], {"cse": True})
         self.ode_c = ca.external("opt_ode", str(_compiled([body, body_jac], f"cedra_opt_{self.scene.name}")))
         self.search = ca.Function("opt_search", [m.q, m.inp, m.par], [searched])
         self.frozen = frozen
         forces = [(m.contacts[k - 1]["Fn"], m.contacts[k - 1]["Fx"]) for k in WHEELS]
-        self.forces_sx = ca.Function("opt_forces", [x, m.inp, m.par, frozen],
+        self.forces_sx = ca.Function("opt_forces", [x, m.inp, m.par, frozen, width],
                                      [ca.vertcat(*[a for a, _ in forces]), ca.vertcat(*[b for _, b in forces])])
 
     def full(self, xr):
@@ -306,13 +337,13 @@ class Dynamics:
     def ode(self, x, tau4):
         inp = self.inputs(tau4)
         # second derivatives are declared zero: the compiled library holds first derivatives only
-        return ca.stop_diff(self.ode_c(x, inp, ca.DM(self.par), self._searched(x, inp)), 2)
+        return ca.stop_diff(self.ode_c(x, inp, ca.DM(self.par), self._searched(x, inp), self.width), 2)
 
     def forces(self, xr):
         """(Fn, Fx) of wheels 1, 2, 5, 6 at shooting state xr (the FMU's wheel[i].Fn, wheel[i].Fx)."""
         x = self.full(xr)
         inp = self.inputs([0, 0, 0, 0])
-        return self.forces_sx(x, inp, ca.DM(self.par), self._searched(x, inp))
+        return self.forces_sx(x, inp, ca.DM(self.par), self._searched(x, inp), self.width)
 
     def integrator(self, tol: float, n_out: int = 1, dt: float | None = None) -> ca.Function:
         """The shooting state at the end of one interval under dx/ds = dt ode(x, tau4) from x(0), p = [tau4; dt]
@@ -461,10 +492,11 @@ def initial_guess(names, rows, n: int, dt: float):
 
 
 def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float, goal_x: float,
-          log: bool = False) -> dict:
+          log: bool = False, warm: dict | None = None, proximal: float = 0.0) -> dict:
     """Multiple shooting: decisions X_0..X_N (shooting states, X_0 fixed at x0), U_0..U_{N-1} (four torques
-    each), the interval length dt (free for the time objective), the epigraph s (peak_friction). IPOPT,
-    limited-memory Hessian. The intervals are integrated on `problem.threads` threads."""
+    each), the interval length dt (free for the time objective), the epigraph s (peak_friction), on the equations
+    at the contact law's smoothing width dyn.width. The intervals are integrated on `problem.threads` threads.
+    warm: a previous solve's result (a continuation stage), its decisions and multipliers the starting point."""
     n, nx = U_guess.shape[0], dyn.nr
     X = ca.MX.sym("X", nx, n + 1)
     U = ca.MX.sym("U", 4, n)
@@ -505,8 +537,14 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
     s0 = 1.0 if problem.objective == "peak_friction" else 0.0
     w0 = np.concatenate([dyn.reduced(X_guess).ravel(order="F"), np.clip(U_guess.T, -problem.torque_max,
                                                           problem.torque_max).ravel(order="F"), [dt_guess], [s0]])
+    warm_opts = {}
+    if warm is not None:
+        w0 = warm["w"]
+        if WARM_DUALS:
+            warm_opts = {"warm_start_init_point": "yes", "mu_init": 1e-4, "warm_start_bound_push": 1e-6,
+                         "warm_start_mult_bound_push": 1e-6}
     nlp = {"x": w, "f": J, "g": ca.vertcat(*g)}
-    hessian = {"hess_lag": _objective_hessian(w, J, nlp["g"].numel(), nx * (n + 1), problem.proximal)} \
+    hessian = {"hess_lag": _objective_hessian(w, J, nlp["g"].numel(), nx * (n + 1), proximal)} \
         if problem.hessian == "objective" else {}
     opts = {"ipopt": {"max_iter": problem.max_iter, "tol": problem.tol,
                       "hessian_approximation": "exact" if hessian else "limited-memory",
@@ -515,17 +553,26 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
                       # docstring), which keeps the dual infeasibility at 1e-3..1e-2 near the optimum: stop there
                       # once the objective has levelled off, with the shooting defects closed
                       "acceptable_tol": 1e-2, "acceptable_iter": 3, "acceptable_obj_change_tol": 1e-3,
-                      "acceptable_constr_viol_tol": 1e-5}, "print_time": False, **hessian}
+                      "acceptable_constr_viol_tol": 1e-5,
+                      # the filter accepts no trial point whose constraint violation (1-norm) exceeds the start's
+                      # (at least 1): the Gauss-Newton steps otherwise trade a large violation for objective
+                      "theta_max_fact": 1.0, **warm_opts}, "print_time": False, **hessian}
     solver = ca.nlpsol("climb", "ipopt", nlp, opts)
     t0 = time.perf_counter()
-    sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg))
+    lbg, ubg = np.concatenate(lbg), np.concatenate(ubg)
+    duals = dict(lam_x0=warm["lam_x"], lam_g0=warm["lam_g"]) if warm is not None and WARM_DUALS else {}
+    sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=lbg, ubg=ubg, **duals)
     wall = time.perf_counter() - t0
     stats = solver.stats()
     wv = np.array(sol["x"]).ravel()
     Xo = wv[:nx * (n + 1)].reshape((nx, n + 1), order="F")
     Uo = wv[nx * (n + 1):nx * (n + 1) + 4 * n].reshape((4, n), order="F").T
+    gv = np.array(sol["g"]).ravel()
+    violation = float(max(np.max(np.maximum(lbg - gv, 0)), np.max(np.maximum(gv - ubg, 0))))
     return dict(X=Xo, U=Uo, dt=float(wv[-2]), s=float(wv[-1]), objective=float(sol["f"]), wall=wall,
-                iterations=int(stats["iter_count"]), status=stats["return_status"], success=bool(stats["success"]))
+                iterations=int(stats["iter_count"]), status=stats["return_status"], success=bool(stats["success"]),
+                violation=violation, width=dyn.width, w=wv, lam_x=np.array(sol["lam_x"]).ravel(),
+                lam_g=np.array(sol["lam_g"]).ravel())
 
 
 def _objective_hessian(w, J, n_g: int, n_states: int, proximal: float) -> ca.Function:
@@ -600,8 +647,17 @@ def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
     X_guess, U_guess = initial_guess(names, rows, n, dt)
     x0 = X_guess[:, 0]
     say(f"solving: {n} intervals of {dt:g} s, objective {problem.objective}, from the {problem.guess} run")
-    result = solve(problem, dyn, x0, X_guess, U_guess, dt, goal_x, log=not quiet)
-    say(f"IPOPT: {result['status']} after {result['iterations']} iterations, {result['wall']:.1f} s")
+    result, stages = None, []
+    for width in problem.smoothing:
+        dyn.width = width
+        if len(problem.smoothing) > 1:
+            say(f"stage {len(stages) + 1}/{len(problem.smoothing)}: contact smoothing width {width:g} m")
+        proximal = problem.proximal[min(len(stages), len(problem.proximal) - 1)]
+        result = solve(problem, dyn, x0, X_guess, U_guess, dt, goal_x, log=not quiet, warm=result, proximal=proximal)
+        stages.append({k: result[k] for k in ("width", "status", "iterations", "wall", "objective", "violation",
+                                              "success")} | {"proximal": proximal})
+        say(f"IPOPT: {result['status']} after {result['iterations']} iterations, {result['wall']:.1f} s, "
+            f"constraint violation {result['violation']:.1e}, objective {result['objective']:.6g}")
     replay_names, replay_rows, replay_ok = replay(problem, dyn, x0, result["U"], result["dt"], build_dir)
     path = model_path(dyn, x0, result["U"], result["dt"], problem.integrator_tol)
     k = min(path.shape[1], replay_rows.shape[0])
@@ -610,8 +666,10 @@ def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
     m_opt = measures(replay_names, replay_rows, goal_x)
     summary = dict(problem=problem.name, scene=problem.scene, objective=problem.objective, goal_x=goal_x,
                    intervals=n, interval=dt, horizon=n * result["dt"], torque_max=problem.torque_max,
-                   integrator_tol=problem.integrator_tol, iterations=result["iterations"], status=result["status"],
-                   success=result["success"], solve_time=result["wall"], nlp_objective=result["objective"],
+                   integrator_tol=problem.integrator_tol, iterations=sum(st["iterations"] for st in stages),
+                   status=result["status"], success=result["success"], violation=result["violation"],
+                   smoothing=result["width"], stages=stages, solve_time=sum(st["wall"] for st in stages),
+                   nlp_objective=result["objective"],
                    replay_ok=replay_ok, replay_deviation=deviation, optimum=m_opt,
                    controllers={mode: runs[mode][2] for mode in GUESSES}, guess=problem.guess,
                    final_x_optimizer=float(result["X"][0, -1]), wall=time.perf_counter() - t_start)
@@ -682,12 +740,17 @@ def report_text(problem: Problem, s: dict) -> str:
              f"(horizon {s['horizon']:.3f} s), initial guess: the {s['guess'].replace('_', ' ')} run.", "",
              "## Solve", "",
              f"- IPOPT: **{s['status']}** after {s['iterations']} iterations, {s['solve_time']:.1f} s "
-             f"(whole command {s['wall']:.1f} s); NLP objective {s['nlp_objective']:.6g}",
+             f"(whole command {s['wall']:.1f} s); NLP objective {s['nlp_objective']:.6g}, constraint violation "
+             f"{s['violation']:.1e}",
+             f"- contact law of the optimizer's equations: "
+             + ("the FMU's (no smoothing)" if s["smoothing"] == 0 else
+                f"smoothed over {s['smoothing']:g} m (the FMU replay integrates the unsmoothed law)"),
              f"- shooting integrator: CVODES, abstol = reltol = {s['integrator_tol']:g}",
              f"- replay through the FMU (open loop, the scene's own solver settings): "
              f"{'completed' if s['replay_ok'] else 'STOPPED EARLY'}; the body path (x, z) stays within "
              f"**{s['replay_deviation']:.2e} m** of the optimizer's "
              f"({'holds' if s['replay_deviation'] <= 1e-4 else 'DOES NOT hold'} the 1e-4 m agreement)", "",
+             *_stage_lines(s["stages"]),
              "## Against the controllers (same FMU, same measures)", "",
              "Measured on the FMU runs recorded every 0.01 s, up to the arrival (body.x first at the goal). "
              "energy: the integral of sum tau_i^2 over the six wheels; peak |Fx|/Fn: over wheels carrying more "
@@ -700,6 +763,19 @@ def report_text(problem: Problem, s: dict) -> str:
     lines += ["", "![optimal torques and trajectory](climb.png)", "",
               f"Reproduce: `python -m cedra optimize {problem.path}`", ""]
     return "\n".join(lines)
+
+
+def _stage_lines(stages) -> list[str]:
+    if len(stages) < 2:
+        return []
+    lines = ["Continuation (each stage started from the previous one's solution and multipliers):", "",
+             "| stage | smoothing width [m] | proximal | IPOPT | iterations | time [s] | constraint violation "
+             "| objective |", "|---|---|---|---|---|---|---|---|"]
+    for k, st in enumerate(stages):
+        lines.append(f"| {k + 1} | {st['width']:g} | {st['proximal']:g} | {st['status']} | {st['iterations']} "
+                     f"| {st['wall']:.1f} "
+                     f"| {st['violation']:.1e} | {st['objective']:.6g} |")
+    return lines + [""]
 
 
 def add_parser(sub):
