@@ -28,7 +28,7 @@ import numpy as np
 from cedra.reports.common import load_average, provenance
 from cedra.run.cosim import DriveLoop
 from cedra.run.scenario import EXAMPLES, fmu
-from cedra.run.sweep import obstacle_end
+from cedra.run.sweep import obstacle_end, variant_fmu
 
 ROVERS = {"CEDRA": ("bump2d", "drive2d", "cedra"), "rocker-bogie": ("rb_bump2d", "rb_drive2d", "rb")}
 CONTROLLERS = {"equal torques": 0, "inverse kinematics": 1}
@@ -50,10 +50,11 @@ def wheels_of(loop) -> list[int]:
 def drive(scene, controller, mode, terrain_h, build_dir, stop_time=STOP_TIME, kind="bump", mu=None,
           speed=SPEED, options=None) -> dict:
     """One run of the rover's plant (terrain `kind`, its height terrain_h, mu: the scene's unless given; options:
-    the scene's variant, cedra.run.scenario.fmu) with its controller in ctrl.mode `mode`; the measures of the
+    the scene's variant, cedra.run.sweep.variant_fmu) with its controller in ctrl.mode `mode`; the measures of the
     module's docstring."""
     values = {"terrain_h": terrain_h} | ({"mu": mu} if mu is not None else {})
-    loop = DriveLoop(fmu(scene, build_dir, options), fmu(controller, build_dir), plant_values=values,
+    plant = variant_fmu(scene, options, build_dir) if options else fmu(scene, build_dir)
+    loop = DriveLoop(plant, fmu(controller, build_dir), plant_values=values,
                      controller_values={"ctrl.mode": mode})
     wheels = range(1, 7)
     record = (["body.x", "energy.work"] + [f"wheel[{i}].{q}" for i in wheels for q in ("Fn", "Fx", "slip", "cx")])

@@ -24,13 +24,9 @@ class ScenarioError(ValueError):
     """Bad scenario input, raised before any simulation starts."""
 
 
-def fmu(name: str, build_dir="build", options: dict | None = None) -> Path:
-    """build/<name>.fmu for a shipped scene or controller, built there first if it is missing. options: a shipped
-    scene's variant with these boolean build options (a sweep's [options], e.g. {"drives": True}), in
-    build/variants/ (cedra.run.sweep.variant_fmu)."""
-    if options:
-        from cedra.run.sweep import variant_fmu
-        return variant_fmu(name, options, build_dir)
+def fmu(name: str, build_dir="build") -> Path:
+    """build/<name>.fmu for a shipped scene or controller, built there first if it is missing (a scene's variant:
+    cedra.run.sweep.variant_fmu)."""
     path = Path(build_dir) / f"{name}.fmu"
     if path.exists():
         return path

@@ -6,7 +6,7 @@ outputs to keep per run and where to write them:
 
     scene = "bump2d"                 # a shipped scene, or a scene file (relative to the sweep file); or instead
     # scenario = "turn_flat"         # a scenario script of examples/ that declares PARAMETERS, SUMMARY and FMUS
-    #                                  (names, or (scene, {options}) for a variant: cedra.run.scenario.fmu)
+    #                                  (names, or (scene, {options}) for a variant: variant_fmu)
     stop_time = 15.0                 # s simulated per run (default: the scene's)
     outputs = ["climbed", "t_over", "peak_Fn", "final_x"]     # default: all of OUTPUTS
     out = "out/climb"                # the table: <out>/<name>.csv (relative to the working directory)
@@ -234,7 +234,7 @@ class Target:
     stop_time: float      # default
     scene: object = None  # kind "scene": the Scene (with options: the variant)
     fmus: tuple = ()      # kind "scenario": the FMUs its run() opens (built before the runs start; a (scene,
-    #                       {options}) entry is a variant, cedra.run.scenario.fmu)
+    #                       {options}) entry is a variant, variant_fmu)
     options: dict = field(default_factory=dict)    # kind "scene": the sweep file's [options]
     variant: bool = False  # kind "scene": the options changed the scene: build target.scene, not the shipped FMU
 
@@ -641,8 +641,10 @@ def execute(sw: Sweep, build_dir="build", scheduler: str | None = None, workers:
         else:
             from cedra.run.scenario import fmu
             for entry in sw.target.fmus:         # built here, once, not by several workers at a time
-                name, options = entry if isinstance(entry, tuple) else (entry, None)
-                fmu(name, build_dir, options)
+                if isinstance(entry, tuple):
+                    variant_fmu(*entry, build_dir)
+                else:
+                    fmu(entry, build_dir)
             build = str(Path(build_dir).resolve())
             futures = {client.submit(run_scenario, sw.target.name, build, p, sw.stop_time, sw.outputs,
                                      key=f"run-{i}", pure=False): (i, p) for i, p in todo}
