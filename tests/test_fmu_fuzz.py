@@ -7,7 +7,7 @@ must report, so a green run means something.
 The classes of glue bugs these runs guard against: setters that are not all-or-nothing, a DoStep that returns OK
 without advancing, calls that do not return; a finding is a failure, never a skip.
 
-Environment: CEDRA_FUZZ_SECONDS (default 30) per scene, CEDRA_FUZZ_SEED (default 1)."""
+Environment: CEDRA_FUZZ_SECONDS (default 20) per scene, CEDRA_FUZZ_SEED (default 1)."""
 from __future__ import annotations
 
 import os
@@ -16,7 +16,7 @@ import pytest
 
 from cedra.fmu import fuzz
 
-SECONDS = float(os.environ.get("CEDRA_FUZZ_SECONDS", "30"))
+SECONDS = float(os.environ.get("CEDRA_FUZZ_SECONDS", "20"))
 SEED = int(os.environ.get("CEDRA_FUZZ_SEED", "1"))
 
 

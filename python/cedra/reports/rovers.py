@@ -9,9 +9,10 @@
    ground in the steady run; over the bump the largest load against the rover's weight share), the mean slip
    speed, the largest friction ratio of a loaded wheel and the motors' work per metre travelled.
 2. **The maps** (not with --quick): the six sweeps examples/sweeps/rovers/{bump,step,stairs}_{cedra,rb}.toml,
-   a terrain's height against mu for one rover (drives, chassis contact, the main job's equal torques), and the
-   two of examples/sweeps/rovers/climb_controllers_{bump,step}.toml (examples/rovers_climb.py: both rovers with
-   their drive controller FMUs in both modes, on the plants with drives and chassis contact), run afresh
+   a terrain's height (and the bump's width) against mu for one rover (drives, chassis contact, the main job's
+   equal torques), and the two of examples/sweeps/rovers/climb_controllers_{bump,step}.toml
+   (examples/rovers_climb.py: both rovers with their drive controller FMUs in both modes, on the plants with
+   drives and chassis contact), run afresh
    (cedra.run.sweep.execute, tables in out/rovers/) and drawn side by side (<out>/rovers_maps.png,
    <out>/rovers_controllers.png) with, per terrain and mu, the highest obstacle each rover gets over. The six
    equal-torque maps run again at solver.tol = 1e-8, and the report says whether every verdict is the same.
@@ -32,7 +33,7 @@ from cedra.run.sweep import obstacle_end, variant_fmu
 
 ROVERS = {"CEDRA": ("bump2d", "drive2d", "cedra"), "rocker-bogie": ("rb_bump2d", "rb_drive2d", "rb")}
 CONTROLLERS = {"equal torques": 0, "inverse kinematics": 1}
-TERRAINS = {"bump": "the paper's bump (width 2.25 R_w)", "step": "a sharp step", "stairs": "4 stairs (run 4 R_w)"}
+TERRAINS = {"bump": "the paper's bump (widths 1 to 6 R_w)", "step": "a sharp step", "stairs": "4 stairs (run 4 R_w)"}
 OBSTACLES = ("bump", "step")     # the controllers' maps (examples/rovers_climb.py)
 SPEED, STOP_TIME, STEP = 0.2, 15.0, 0.01
 BUMP_H = 0.14625                 # the paper's bump height (2.25 R_w)
@@ -40,11 +41,6 @@ LOADED = 5.0                     # N: a wheel's friction ratio counts while it c
 STEADY = (5.0, 15.0)             # s: on flat ground, the loads' spread is taken over this window
 R_W = 0.065
 CHECK_TOL = 1e-8                 # the equal-torque maps' verdicts are checked again at this solver.tol
-
-
-def wheels_of(loop) -> list[int]:
-    """The plant's distinct wheels (2D: CEDRA's 3, 4 repeat 1, 2; every rocker-bogie wheel pair is one)."""
-    return [i for i in range(1, 7) if loop.plant.has(f"wheel[{i}].Fn")]
 
 
 def drive(scene, controller, mode, terrain_h, build_dir, stop_time=STOP_TIME, kind="bump", mu=None,
@@ -56,7 +52,7 @@ def drive(scene, controller, mode, terrain_h, build_dir, stop_time=STOP_TIME, ki
     plant = variant_fmu(scene, options, build_dir) if options else fmu(scene, build_dir)
     loop = DriveLoop(plant, fmu(controller, build_dir), plant_values=values,
                      controller_values={"ctrl.mode": mode})
-    wheels = range(1, 7)
+    wheels = range(1, 7)        # in 2D each wheel's twin on the other side has its own outputs, the same values
     record = (["body.x", "energy.work"] + [f"wheel[{i}].{q}" for i in wheels for q in ("Fn", "Fx", "slip", "cx")])
     cpu = time.process_time()
     try:
@@ -185,6 +181,14 @@ def _cells(best, mus) -> list[str]:
     return cells
 
 
+def panels(sw, rows) -> list[tuple[str, list]]:
+    """A map's rows per bump width (a sweep with terrain_w in its grid), else all in one: [(label, rows)]."""
+    if "terrain_w" not in sw.grid:
+        return [("", rows)]
+    return [(f"width {w / R_W:g} R_w", [r for r in rows if abs(float(r["terrain_w"]) - w) < 1e-12])
+            for w in sw.grid["terrain_w"]]
+
+
 def maps_table(maps, checks=None) -> list[str]:
     """The equal-torque maps with drives: per terrain and rover, the highest obstacle got over per mu (and, with
     checks, whether every verdict is the same at solver.tol = CHECK_TOL)."""
@@ -202,8 +206,9 @@ def maps_table(maps, checks=None) -> list[str]:
             if checks:
                 n, differ = checks.get(key, (0, 0))
                 check = f" {'all ' + str(n) + ' the same' if not differ else f'{differ} of {n} differ'} |"
-            lines.append(f"| {terrain} | {rover} | " + " | ".join(_cells(highest_over(maps[key][1]), mus)) + " |"
-                         + check)
+            for label, rows in panels(*maps[key]):
+                what = f"{terrain} ({label})" if label else terrain
+                lines.append(f"| {what} | {rover} | " + " | ".join(_cells(highest_over(rows), mus)) + " |" + check)
     return lines
 
 
@@ -227,19 +232,22 @@ def draw_maps(maps, path: Path) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
     from cedra.run.sweep_map import VERDICT_COLOURS
-    fig, axes = plt.subplots(len(TERRAINS), len(ROVERS), figsize=(10, 3.2 * len(TERRAINS)), squeeze=False)
+    layout = [(terrain, k) for terrain in TERRAINS for k in range(len(panels(*maps[(terrain, "CEDRA")])))]
+    fig, axes = plt.subplots(len(layout), len(ROVERS), figsize=(10, 2.6 * len(layout)), squeeze=False)
     seen = set()
-    for row, terrain in enumerate(TERRAINS):
+    for row, (terrain, k) in enumerate(layout):
         for col, rover in enumerate(ROVERS):
             ax = axes[row][col]
-            sw, rows = maps[(terrain, rover)]
+            sw = maps[(terrain, rover)][0]
+            label, rows = panels(*maps[(terrain, rover)])[k]
             for r in rows:
                 v = r.get("verdict") if r.get("status") == "ok" else "failed"
                 v = v if v in VERDICT_COLOURS else "failed"
                 seen.add(v)
-                ax.scatter(float(r["terrain_h"]) / R_W, float(r["mu"]), s=260, marker="s",
+                ax.scatter(float(r["terrain_h"]) / R_W, float(r["mu"]), s=200, marker="s",
                            color=VERDICT_COLOURS[v], edgecolor="k", lw=0.4)
-            ax.set_title(f"{rover}: {TERRAINS[terrain]}", fontsize=9)
+            what = {"bump": "the bump", "step": "a sharp step", "stairs": "4 stairs (run 4 R_w)"}[terrain]
+            ax.set_title(f"{rover}: {what}" + (f", {label}" if label else ""), fontsize=9)
             ax.set_xlabel(sw.map.get("x_label", "h / R_w"), fontsize=8)
             ax.set_ylabel("mu", fontsize=8)
             ax.margins(0.12)
