@@ -34,7 +34,8 @@ any run (and before any build) naming the file, the key and the reason.
 drives with locked_wheels fails, for instance), under its own model name (<scene>_drives; <scene>_nodrives for
 drives = false on a scene that has them), built into <build>/variants/ and rebuilt only when its model or the FMU
 sources changed. The options are part of every run's id, so the runs of two variants never mix in a table. A
-scene file's FMU is kept the same way, in <build>/scenes/.
+scene file's FMU is kept the same way, in <build>/scenes/ (a heightmap scene's is built every time: its grid file
+is not in the FMU's GUID).
 
 Runs execute on Dask: a LocalCluster with one single-threaded worker process per core by default, or an existing
 cluster with --scheduler (the same code; the workers need this package installed, e.g. `pip install -e .` in a
@@ -679,7 +680,11 @@ def _build(sw: Sweep, build_dir) -> Path:
         return _variant_fmu(sw.target.scene, Path(build_dir) / "variants")
     if sw.target.name in shipped():
         return fmu(sw.target.name, build_dir)
-    # a scene file's FMU, like a variant's, is built once and kept while it is the same build
+    # a scene file's FMU, like a variant's, is built once and kept while it is the same build; but a heightmap's
+    # grid is a resource the GUID does not see, and the user may have edited it: such a scene is built every time
+    if sw.target.scene.options.heightmap:
+        from cedra.fmu.packaging import build_fmu
+        return build_fmu(sw.target.scene.spec(), build_dir)
     return _variant_fmu(sw.target.scene, Path(build_dir) / "scenes")
 
 
