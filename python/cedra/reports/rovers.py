@@ -302,7 +302,8 @@ def write(out: Path, rows, maps, command, wall, load_at_start, checks=None) -> P
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# CEDRA and the rocker-bogie", "", provenance(command, wall, load_at_start), "",
              "## The paper's run, both rovers, both controllers", "",
-             f"Each planar rover with its drive controller FMU at {SPEED} m/s for {STOP_TIME:g} s on the paper's "
+             f"Each planar rover's shipped scene (bump2d, rb_bump2d: no drives, no chassis contact, as the paper's "
+             f"run) with its drive controller FMU at {SPEED} m/s for {STOP_TIME:g} s on the paper's "
              "bump and on flat ground (the same scene, terrain_h = 0); the loads' spread on flat ground is max / "
              "min of the six wheels' mean loads over 5-15 s; the weight share is the loads' sum at rest / 6.", ""]
     lines += measures_table(rows)
