@@ -1,5 +1,5 @@
 """`python -m cedra report rovers --quick`: the paper's run for both rovers and both controllers (the climbing maps,
-eight sweeps of 20-28 runs each, are the full report's: `python -m cedra report rovers`)."""
+nine sweeps of 20 to 112 runs each, are the full report's: `python -m cedra report rovers`)."""
 import argparse
 from pathlib import Path
 

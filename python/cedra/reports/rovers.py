@@ -10,7 +10,7 @@
    speed, the largest friction ratio of a loaded wheel and the motors' work per metre travelled.
 2. **The maps** (not with --quick): the six sweeps examples/sweeps/rovers/{bump,step,stairs}_{cedra,rb}.toml,
    a terrain's height (and the bump's width) against mu for one rover (drives, chassis contact, the main job's
-   equal torques), and the two of examples/sweeps/rovers/climb_controllers_{bump,step}.toml
+   equal torques), and the three of examples/sweeps/rovers/climb_controllers_{bump,step,stairs}.toml
    (examples/rovers_climb.py: both rovers with their drive controller FMUs in both modes, on the plants with
    drives and chassis contact), run afresh
    (cedra.run.sweep.execute, tables in out/rovers/) and drawn side by side (<out>/rovers_maps.png,
@@ -34,7 +34,7 @@ from cedra.run.sweep import obstacle_end, variant_fmu
 ROVERS = {"CEDRA": ("bump2d", "drive2d", "cedra"), "rocker-bogie": ("rb_bump2d", "rb_drive2d", "rb")}
 CONTROLLERS = {"equal torques": 0, "inverse kinematics": 1}
 TERRAINS = {"bump": "the paper's bump (widths 1 to 6 R_w)", "step": "a sharp step", "stairs": "4 stairs (run 4 R_w)"}
-OBSTACLES = ("bump", "step")     # the controllers' maps (examples/rovers_climb.py)
+OBSTACLES = ("bump", "step", "stairs")     # the controllers' maps (examples/rovers_climb.py)
 SPEED, STOP_TIME, STEP = 0.2, 15.0, 0.01
 BUMP_H = 0.14625                 # the paper's bump height (2.25 R_w)
 LOADED = 5.0                     # N: a wheel's friction ratio counts while it carries more than this
@@ -44,10 +44,10 @@ CHECK_TOL = 1e-8                 # the equal-torque maps' verdicts are checked a
 
 
 def drive(scene, controller, mode, terrain_h, build_dir, stop_time=STOP_TIME, kind="bump", mu=None,
-          speed=SPEED, options=None) -> dict:
+          speed=SPEED, options=None, steps=1) -> dict:
     """One run of the rover's plant (terrain `kind`, its height terrain_h, mu: the scene's unless given; options:
-    the scene's variant, cedra.run.sweep.variant_fmu) with its controller in ctrl.mode `mode`; the measures of the
-    module's docstring."""
+    the scene's variant, cedra.run.sweep.variant_fmu; steps: the stairs' number of steps) with its controller in
+    ctrl.mode `mode`; the measures of the module's docstring."""
     values = {"terrain_h": terrain_h} | ({"mu": mu} if mu is not None else {})
     plant = variant_fmu(scene, options, build_dir) if options else fmu(scene, build_dir)
     loop = DriveLoop(plant, fmu(controller, build_dir), plant_values=values,
@@ -71,7 +71,7 @@ def drive(scene, controller, mode, terrain_h, build_dir, stop_time=STOP_TIME, ki
     fx = np.array([r.column(f"wheel[{i}].Fx") for i in wheels])
     slip = np.array([r.column(f"wheel[{i}].slip") for i in wheels])
     cx = np.array([r.column(f"wheel[{i}].cx") for i in wheels])
-    goal = obstacle_end(kind, inputs)
+    goal = obstacle_end(kind, inputs, steps)
     past = np.nonzero(cx.min(axis=0) > goal)[0]
     x = r.column("body.x")
     travelled = x[-1] - x[0]
@@ -117,7 +117,7 @@ def measures_table(rows) -> list[str]:
 # ------------------------------------------------------------------------------------------------ the maps
 
 def map_sweeps():
-    """The six sweeps of the equal-torque maps with drives, {(terrain, rover label): Sweep}, and the two of the
+    """The six sweeps of the equal-torque maps with drives, {(terrain, rover label): Sweep}, and the three of the
     controllers' maps, {("controllers", obstacle): Sweep}."""
     from cedra.run.sweep import load
     here = EXAMPLES / "sweeps" / "rovers"
@@ -282,7 +282,7 @@ def draw_controllers(maps, path: Path) -> Path:
                 ax.scatter(float(r["terrain_h"]) / R_W, float(r["mu"]), s=200, marker="s", color=YES_NO_COLOURS[c],
                            edgecolor="k", lw=0.4)
             ax.set_title(f"{rover}, {mode}: {key[1]}", fontsize=8)
-            ax.set_xlabel(f"{key[1]} height h / R_w", fontsize=8)
+            ax.set_xlabel(f"{key[1]} {'rise' if key[1] == 'stairs' else 'height'} h / R_w", fontsize=8)
             if col == 0:
                 ax.set_ylabel("mu", fontsize=8)
             ax.margins(0.12)
@@ -341,7 +341,7 @@ def main(args) -> int:
     rows = measures(build, log=log)
     maps = checks = None
     if not args.quick:
-        log("the climbing maps (eight sweeps; the six equal-torque maps again at a tight tolerance):")
+        log("the climbing maps (nine sweeps; the six equal-torque maps again at a tight tolerance):")
         maps, checks = run_maps(build, quiet=args.quiet, log=log)
     command = "python -m cedra report rovers" + (" --quick" if args.quick else "")
     path = write(Path(args.out), rows, maps, command, time.perf_counter() - t0, load_at_start, checks)

@@ -689,8 +689,9 @@ def _build(sw: Sweep, build_dir) -> Path:
 
 
 def variant_fmu(name: str, options: dict, build_dir="build") -> Path:
-    """The FMU of shipped scene `name` with these [options] (a scenario's plant): <build_dir>/variants/<variant>.fmu,
-    built unless up to date; the scene's own FMU where the options change nothing."""
+    """The FMU of scene `name` (shipped, or a scene file's path) with these [options] (a scenario's plant):
+    <build_dir>/variants/<variant>.fmu, built unless up to date; where the options change nothing, the shipped
+    scene's own FMU, or a scene file's in <build_dir>/scenes/."""
     from cedra.run.scenario import ScenarioError, fmu
     where = Path(f"<scene {name}>")
     try:
@@ -698,7 +699,10 @@ def variant_fmu(name: str, options: dict, build_dir="build") -> Path:
         var = variant(where, scene, _options(where, options))
     except SweepError as e:
         raise ScenarioError(str(e)) from e
-    return fmu(name, build_dir) if var is scene else _variant_fmu(var, Path(build_dir) / "variants")
+    if var is not scene:
+        return _variant_fmu(var, Path(build_dir) / "variants")
+    from cedra.models.scene import shipped
+    return fmu(name, build_dir) if name in shipped() else _variant_fmu(scene, Path(build_dir) / "scenes")
 
 
 def _variant_fmu(scene, build_dir: Path) -> Path:
