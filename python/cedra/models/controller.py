@@ -242,14 +242,10 @@ def _estimate(dims, loads, p, tau):
     return [normal[_group(dims, k)] for k in WHEELS], ca.mmax(ca.vertcat(*ratios))
 
 
-def sample_function(dims: str) -> ca.Function:
-    """cedra_sample(inp, par, xd) -> (y, xd_next); xd as in STATES."""
-    ins, pars, outs = inputs(dims), params(), outputs(dims)
-    inp, par, xd = ca.SX.sym("inp", len(ins)), ca.SX.sym("par", len(pars)), ca.SX.sym("xd", len(STATES))
-    i = {q.name: inp[k] for k, q in enumerate(ins)}
-    p = {q.name: par[k] for k, q in enumerate(pars)}
-    three = dims == "3d"
-    T, lim = p["ctrl.period"], p["ctrl.tau_max"]
+def _commands_and_trims(i, p, xd, three):
+    """The ramped commands (cmd_v, cmd_yaw), the measured forward speed v and the next speed and yaw-rate trims
+    (xd[7], xd[8]: integral on the measured speed and yaw rate, within TRIM_LIMITS); every rover's controller."""
+    T = p["ctrl.period"]
     # the ramp counts samples (xd[9] = k T at sample k), so it is the same whatever time arithmetic a master uses
     ramp = ca.if_else(p["ctrl.ramp_time"] > 0, ca.fmin(1, xd[9] / p["ctrl.ramp_time"]), 1)
     cmd_v = i["cmd.v"] * ramp
@@ -258,6 +254,18 @@ def sample_function(dims: str) -> ca.Function:
     trim_v = ca.fmin(ca.fmax(xd[7] + p["ctrl.trim_ki"] * (cmd_v - v) * T, -TRIM_LIMITS[0]), TRIM_LIMITS[0])
     trim_w = ca.fmin(ca.fmax(xd[8] + p["ctrl.trim_ki"] * (cmd_yaw - i["body.wz"]) * T, -TRIM_LIMITS[1]),
                      TRIM_LIMITS[1]) if three else 0
+    return cmd_v, cmd_yaw, v, trim_v, trim_w
+
+
+def sample_function(dims: str) -> ca.Function:
+    """cedra_sample(inp, par, xd) -> (y, xd_next); xd as in STATES."""
+    ins, pars, outs = inputs(dims), params(), outputs(dims)
+    inp, par, xd = ca.SX.sym("inp", len(ins)), ca.SX.sym("par", len(pars)), ca.SX.sym("xd", len(STATES))
+    i = {q.name: inp[k] for k, q in enumerate(ins)}
+    p = {q.name: par[k] for k, q in enumerate(pars)}
+    three = dims == "3d"
+    T, lim = p["ctrl.period"], p["ctrl.tau_max"]
+    cmd_v, cmd_yaw, v, trim_v, trim_w = _commands_and_trims(i, p, xd, three)
     s = drive_symbols()
     values = dict(xdot_d=cmd_v + trim_v, phidot_d=cmd_yaw + trim_w,
                   theta=ca.vertcat(i["bogie.theta[1]"], i["bogie.theta[2]"], i["fork.theta4"]),
@@ -402,13 +410,7 @@ def rover_sample_function(rover: str, dims: str) -> ca.Function:
     p = {q.name: par[k] for k, q in enumerate(pars)}
     three = dims == "3d"
     T, lim = p["ctrl.period"], p["ctrl.tau_max"]
-    ramp = ca.if_else(p["ctrl.ramp_time"] > 0, ca.fmin(1, xd[9] / p["ctrl.ramp_time"]), 1)
-    cmd_v = i["cmd.v"] * ramp
-    cmd_yaw = i["cmd.yaw_rate"] * ramp if three else 0
-    v = i["body.vx"] * ca.cos(i["body.yaw"]) + i["body.vy"] * ca.sin(i["body.yaw"]) if three else i["body.vx"]
-    trim_v = ca.fmin(ca.fmax(xd[7] + p["ctrl.trim_ki"] * (cmd_v - v) * T, -TRIM_LIMITS[0]), TRIM_LIMITS[0])
-    trim_w = ca.fmin(ca.fmax(xd[8] + p["ctrl.trim_ki"] * (cmd_yaw - i["body.wz"]) * T, -TRIM_LIMITS[1]),
-                     TRIM_LIMITS[1]) if three else 0
+    cmd_v, cmd_yaw, v, trim_v, trim_w = _commands_and_trims(i, p, xd, three)
     zero = ca.SX(0)
     rates = dk.function(cmd_v + trim_v, cmd_yaw + trim_w, i["body.pitch"], i["body.roll"] if three else zero,
                         i["body.wx"] if three else zero, i["body.wy"],
