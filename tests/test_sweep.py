@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import os
 import signal
+import tempfile
 import textwrap
 from dataclasses import replace
+from pathlib import Path
 
 import psutil
 import pytest
@@ -179,6 +181,7 @@ def _worker_pids():
 def test_killed_worker_loses_nothing(tmp_path, bump2d_fmu):
     sw = load(write(tmp_path, MIXED.replace("stop_time = 2.0", "stop_time = 3.0")))
     seen = {}
+    leftovers = set(Path(tempfile.gettempdir()).glob("cedra-*.fmu"))
 
     def kill_one(k, row):
         if k == 3:
@@ -196,6 +199,8 @@ def test_killed_worker_loses_nothing(tmp_path, bump2d_fmu):
     # the killed worker's run was rescheduled: the table equals an undisturbed sweep's
     execute(sw, BUILD, workers=2, quiet=True, overwrite=True)
     assert results(sw.table) == after
+    # a worker's copy of the FMU lives in the worker's own directory, which Dask removes even for a killed worker
+    assert set(Path(tempfile.gettempdir()).glob("cedra-*.fmu")) <= leftovers
 
 
 def _free_port():

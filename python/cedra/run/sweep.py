@@ -430,14 +430,24 @@ def _remove_fmu_files():
             os.remove(name)
 
 
+def _scratch_directory() -> str | None:
+    """The Dask worker's own directory, which Dask removes when the worker closes (a closing worker process is
+    terminated, so an atexit handler does not run there); None outside a worker."""
+    try:
+        from distributed import get_worker
+        return get_worker().local_directory
+    except (ImportError, ValueError):
+        return None
+
+
 def _fmu_file(fmu_bytes: bytes) -> str:
-    """The FMU's bytes (sent once to each worker) as a file this worker process reuses for all its runs and
-    removes when it exits."""
+    """The FMU's bytes (sent once to each worker) as a file this worker process reuses for all its runs, in the
+    worker's directory (removed with the worker); outside a worker a temporary file removed at exit."""
     sha = hashlib.sha256(fmu_bytes).hexdigest()
     if sha not in _FMU_FILES or not os.path.exists(_FMU_FILES[sha]):
         if not _FMU_FILES:
             atexit.register(_remove_fmu_files)
-        fd, name = tempfile.mkstemp(prefix=f"cedra-{sha[:12]}-", suffix=".fmu")
+        fd, name = tempfile.mkstemp(prefix=f"cedra-{sha[:12]}-", suffix=".fmu", dir=_scratch_directory())
         with os.fdopen(fd, "wb") as fh:
             fh.write(fmu_bytes)
         _FMU_FILES[sha] = name
