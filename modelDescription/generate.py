@@ -58,8 +58,21 @@ def spec_guid(spec: ModelSpec) -> str:
                         sort_keys=True, default=str).encode())
     for name in spec.function_names():
         h.update(name.encode())
-        h.update(spec.functions[name].serialize().encode())
+        h.update(_portable(spec.functions[name].serialize()))
     return "{" + str(uuid.UUID(bytes=h.digest()[:16])) + "}"
+
+
+def _portable(serialized: str) -> bytes:
+    """A function's serialization without the checkout's location, for the hash: the host libraries a model calls
+    through casadi.external (the contact search) are named by their absolute path, and the same model built from
+    another directory must get the same GUID. CasADi's serialization is its bytes written two letters a-p a byte,
+    the low half first; a path is its 4-byte length followed by its bytes. The library's directory and the length
+    go, its file name (a hash of its source) stays."""
+    from cedra.mechanics.rim import HOST_DIR
+    data = bytes(16 * (ord(hi) - 97) + ord(lo) - 97 for lo, hi in zip(serialized[::2], serialized[1::2]))
+    for host in {str(HOST_DIR), str(HOST_DIR.resolve())}:
+        data = re.sub(rb"(?s).{4}" + re.escape(host.encode()), b"<host>", data)
+    return data
 
 
 # ------------------------------------------------------------------------------------------------ units

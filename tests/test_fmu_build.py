@@ -112,3 +112,31 @@ def test_documentation_lists_every_variable(toy):
         doc = z.read("documentation/index.html").decode()
     for v in read_model_description(str(toy)).modelVariables:
         assert f"<code>{v.name}</code>" in doc
+
+
+def test_guid_does_not_depend_on_the_checkouts_location(tmp_path, monkeypatch):
+    """A model calls the contact search through casadi.external, named by the host library's absolute path: the
+    same model in another checkout (another build/host) gets the same GUID."""
+    import shutil
+
+    import casadi as ca
+
+    from cedra.mechanics import rim
+    from cedra.mechanics.terrain import Terrain, terrain_inputs
+    gen = fmu_mod._generator()
+    library = rim._host(Terrain("bump", {n: ca.SX.sym(n) for n in terrain_inputs("bump", "2d")}))
+    hashes, serialized = [], []
+    for checkout in ("one", "three"):                 # paths of different lengths
+        host = tmp_path / checkout / "build" / "host"
+        host.mkdir(parents=True)
+        shutil.copy(library, host / library.name)
+        monkeypatch.setattr(rim, "HOST_DIR", host)
+        x = ca.MX.sym("x", 15)
+        search = ca.external(rim.EXTERNAL_NAME, str(host / library.name))
+        spec = toy_spec()
+        first = spec.function_names()[0]          # a function that calls the search, in place of the toy's
+        spec.functions[first] = ca.Function(first, [x], [search(x)])
+        serialized.append(spec.functions[first].serialize())
+        hashes.append(gen.spec_guid(spec))
+    assert serialized[0] != serialized[1]             # the path is in the serialization
+    assert hashes[0] == hashes[1]
