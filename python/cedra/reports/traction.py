@@ -159,8 +159,8 @@ def main(argv=None):
     for mode, r in runs.items():
         s = summary(r, wheels)
         print(f"{a.plant} at {a.speed:g} m/s, {MODES[mode]}: peak |Fx|/Fn {s['peak_ratio']:.3f} ({s['peak_at']}), "
-              f"99th percentile {s['q99_ratio']:.3f}, mean {s['mean_ratio']:.3f}, samples x wheels above 0.79: {s['at_limit']}, peak torque "
-              f"{s['peak_tau']:.2f} N.m, body.x {s['x_end']:.3f} m")
+              f"99th percentile {s['q99_ratio']:.3f}, mean {s['mean_ratio']:.3f}, samples x wheels above 0.79: "
+              f"{s['at_limit']}, peak torque {s['peak_tau']:.2f} N.m, body.x {s['x_end']:.3f} m")
         print("    normal-force estimate - plant, per wheel " + ", ".join(
             f"{i}: mean |e| {m:.1f} N, max |e| {x:.1f} N" for i, m, x in
             zip(wheels, s["est_mean_abs"], s["est_max_abs"])) + f"; median relative error {s['est_median_rel']:.3f}")
