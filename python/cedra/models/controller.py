@@ -171,6 +171,18 @@ def _by_mode(mode, equal_torques, inverse_kinematics, traction):
     return ca.if_else(mode < 0.5, equal_torques, ca.if_else(mode < 1.5, inverse_kinematics, traction))
 
 
+def _select(mode, speed, ik, traction, xd, trim_v, trim_w, period):
+    """The selected mode's six torques and the next states (STATES): the speed PI (torque, integral) for modes 0 and
+    2, the rate loops ((torque, integral) per wheel) and the trims for mode 1, the traction torques for mode 2;
+    every rover's controller."""
+    speed_tau, speed_int = speed
+    tau = [_by_mode(mode, speed_tau, ik[k][0], traction[k]) for k in range(6)]
+    xd_next = ca.vertcat(_by_mode(mode, speed_int, xd[0], speed_int),
+                         *[_by_mode(mode, xd[1 + k], ik[k][1], xd[1 + k]) for k in range(6)],
+                         _by_mode(mode, xd[7], trim_v, xd[7]), _by_mode(mode, xd[8], trim_w, xd[8]), xd[9] + period)
+    return tau, xd_next
+
+
 def _loads(dims, i, p):
     """The quasi-static balance at the measured pose: N = N0 + B T per wheel group (rover.statics)."""
     three = dims == "3d"
@@ -314,10 +326,7 @@ def sample_function(dims: str) -> ca.Function:
     mode = p["ctrl.mode"]
     loads = _loads(dims, i, p)
     traction_tau = _traction_control(dims, i, p, loads, 6 * speed_tau)
-    tau = [_by_mode(mode, speed_tau, ik[k][0], traction_tau[k]) for k in range(6)]
-    xd_next = ca.vertcat(_by_mode(mode, speed_int, xd[0], speed_int),
-                         *[_by_mode(mode, xd[1 + k], ik[k][1], xd[1 + k]) for k in range(6)],
-                         _by_mode(mode, xd[7], trim_v, xd[7]), _by_mode(mode, xd[8], trim_w, xd[8]), xd[9] + T)
+    tau, xd_next = _select(mode, (speed_tau, speed_int), ik, traction_tau, xd, trim_v, trim_w, T)
     fn_est, ratio = _estimate(loads, p, tau, [_group(dims, k) for k in WHEELS])
     y = tau + ([steer[0], steer[1]] if three else []) + [rates[k] for k in range(6)] + [v] + fn_est + [ratio]
     assert len(y) == len(outs)
@@ -469,10 +478,7 @@ def rover_sample_function(rover: str, dims: str) -> ca.Function:
     st = rover_statics(kind, dims)
     loads, rolling = _rover_loads_and_rolling(kind, dims, i, p)
     traction = _guarded(_traction_torques(loads, p, 6 * speed_tau, st.multiplicity, st.group_of), i, p, rolling)
-    tau = [_by_mode(mode, speed_tau, ik[k][0], traction[k]) for k in range(6)]
-    xd_next = ca.vertcat(_by_mode(mode, speed_int, xd[0], speed_int),
-                         *[_by_mode(mode, xd[1 + k], ik[k][1], xd[1 + k]) for k in range(6)],
-                         _by_mode(mode, xd[7], trim_v, xd[7]), _by_mode(mode, xd[8], trim_w, xd[8]), xd[9] + T)
+    tau, xd_next = _select(mode, (speed_tau, speed_int), ik, traction, xd, trim_v, trim_w, T)
     fn_est, ratio = _estimate(loads, p, tau, st.group_of)
     y = tau + [rates[k] for k in range(6)] + [v] + fn_est + [ratio]
     assert len(y) == len(outs)
