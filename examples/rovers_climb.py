@@ -1,5 +1,6 @@
-"""CEDRA and the rocker-bogie over one obstacle, each with its drive controller in both modes: equal torques from
-the speed loop (ctrl.mode 0, the paper's run) and the inverse kinematics with a rate loop per wheel (ctrl.mode 1).
+"""CEDRA and the rocker-bogie over one obstacle, each with its drive controller in its three modes: equal torques
+from the speed loop (ctrl.mode 0, the paper's run), the inverse kinematics with a rate loop per wheel (ctrl.mode 1)
+and traction control (ctrl.mode 2: the speed loop's summed torque at one friction ratio on every wheel).
 
     python examples/rovers_climb.py          (or: python -m cedra simulate rovers_climb)
 
@@ -22,7 +23,7 @@ STOP_TIME = 15.0
 RB_STAIRS = str(Path(__file__).resolve().parent / "scenes" / "rb_stairs2d.toml")     # a scene file, not shipped
 ROVERS = {"CEDRA": ("drive2d", {0: "bump2d", 1: "step2d", 2: "stairs2d"}),
           "rocker-bogie": ("rb_drive2d", {0: "rb_bump2d", 1: "rb_step2d", 2: RB_STAIRS})}
-MODES = {"equal torques": 0, "inverse kinematics": 1}
+MODES = {"equal torques": 0, "inverse kinematics": 1, "traction control": 2}
 KINDS = {0: "bump", 1: "step", 2: "stairs"}
 STAIRS_STEPS = 4            # stairs2d's and rb_stairs2d's
 # the plants' variant: the drives' torque-speed envelope (a wheel's torque falls to 0 at the no-load speed: without

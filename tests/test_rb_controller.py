@@ -1,11 +1,14 @@
 """The rocker-bogie's drive controller: its inverse kinematics (cedra.mechanics.drive_kinematics, formed from the
 rover's description) against independent computations, and the FMUs rb_drive2d, rb_drive3d in the loop with the
-rocker-bogie's plants: a skid-steered turn on flat ground follows the command, and the paper's bump is crossed.
+rocker-bogie's plants: a skid-steered turn on flat ground follows the command, and the paper's bump is crossed in
+every mode, traction control asking less friction than the inverse kinematics. (Its balance:
+tests/test_statics.py.)
 (The checkers every shipped controller passes run over CONTROLLERS in tests/test_controller.py and
 tests/test_fmu_misuse.py.)"""
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import casadi as ca
@@ -14,7 +17,7 @@ import pytest
 
 from cedra.mechanics.drive_kinematics import drive_kinematics
 from cedra.mechanics.transforms import rot_x, rot_y
-from cedra.models.controller import shipped_controller
+from cedra.models.controller import rover_sample_function, shipped_controller
 from cedra.rover import kinematics
 from cedra.rover.mechanism import CEDRA
 from cedra.rover.parameters import DEFAULTS as CEDRA_DEFAULTS
@@ -124,8 +127,26 @@ def test_the_controllers_geometry_and_modes():
         pars = {p.name: p for p in spec.params}
         for n in ("R_w", "bogie_x", "bogie_half", "front_x"):
             assert pars[n].start == DEFAULTS[n]
-        assert (pars["ctrl.mode"].min, pars["ctrl.mode"].max) == (0, 1)     # traction control is CEDRA's only
-        assert not any(o.name.startswith(("ctrl.Fn_est", "ctrl.ratio", "steer")) for o in spec.outputs)
+        for n in ("m_B", "m_w", "g", "bogie_stop", "stop_k"):             # the balance's
+            assert pars[n].start == DEFAULTS[n]
+        assert (pars["ctrl.mode"].min, pars["ctrl.mode"].max) == (0, 2)
+        outputs = {o.name for o in spec.outputs}
+        assert {f"ctrl.Fn_est[{i}]" for i in range(1, 7)} | {"ctrl.ratio"} <= outputs
+        assert not any(o.startswith("steer") for o in outputs)
+
+
+def test_a_sample_has_a_fixed_cost():
+    """The generated C of the rocker-bogie's sample function is straight-line code (every mode evaluated, the
+    mode selects; the balance's Newton steps a fixed number)."""
+    for dims in ("2d", "3d"):
+        f = rover_sample_function("rocker_bogie", dims)
+        code = ca.CodeGenerator("sample.c", {"with_header": False})
+        code.add(f)
+        text = code.dump()
+        body = text[text.index("static int casadi_f0"):]
+        body = body[:body.index("\n}\n")]
+        assert not re.search(r"\b(for|while|goto|do)\b", body), dims
+        print(f"{dims}: {f.n_instructions()} instructions")
 
 
 def _run(plant, controller, stop, commands, record, **values):
@@ -155,22 +176,34 @@ def test_skid_steered_turn_on_flat_ground():
     assert left < 0 < right                   # a left turn: the inner side brakes, the outer side drives
 
 
-def test_bump_crossed_in_both_modes():
-    """rb_bump2d + rb_drive2d at 0.2 m/s, 15 s: both modes get over the bump; the inverse kinematics' mean slip
+WHEELS_2D = (1, 2, 3)          # 2D: wheels 4, 5, 6 repeat 1, 2, 3
+
+
+@pytest.fixture(scope="module")
+def bump_runs():
+    """rb_bump2d + rb_drive2d at 0.2 m/s, 15 s, in modes 0, 1 and 2 (about 0.3 s each)."""
+    wheels = range(1, 7)
+    rec = ["body.x", "body.vx", "body.pitch", "body.wy", "bogie.beta[1]", "bogie.rate[1]"] + \
+        [f"wheel[{i}].{q}" for q in ("slip", "omega", "psi_R", "Fn", "Fx") for i in wheels] + \
+        [f"ctrl.Fn_est[{i}]" for i in wheels]
+    return {mode: _run("rb_bump2d", "rb_drive2d", 15.0, {"cmd.v": 0.2}, rec, **{"ctrl.mode": mode})
+            for mode in (0, 1, 2)}
+
+
+def test_bump_crossed_in_every_mode(bump_runs):
+    """rb_bump2d + rb_drive2d at 0.2 m/s, 15 s: every mode gets over the bump; the inverse kinematics' mean slip
     stays below 1 % of the commanded speed (equal torques slip less on this rover: its six loads are equal). The
     wheel rates replayed over the equal-torque run with the measured speed in place of the command are the plant's
     wheel rates up to the wheels' small slip."""
     wheels = range(1, 7)
-    rec = ["body.x", "body.vx", "body.pitch", "body.wy", "bogie.beta[1]", "bogie.rate[1]"] + \
-        [f"wheel[{i}].{q}" for q in ("slip", "omega", "psi_R") for i in wheels]
-    slip, runs = {}, {}
-    for mode in (0, 1):
-        r = runs[mode] = _run("rb_bump2d", "rb_drive2d", 15.0, {"cmd.v": 0.2}, rec, **{"ctrl.mode": mode})
+    slip = {}
+    for mode, r in bump_runs.items():
         assert r.column("body.x")[-1] > 2.5
         slip[mode] = np.mean(np.abs([r.column(f"wheel[{i}].slip") for i in wheels]))
-    print(f"mean |slip|: equal torques {slip[0]:.6f} m/s, inverse kinematics {slip[1]:.6f} m/s")
+    print(f"mean |slip|: equal torques {slip[0]:.6f} m/s, inverse kinematics {slip[1]:.6f} m/s, traction control "
+          f"{slip[2]:.6f} m/s")
     assert slip[1] < 0.002
-    r, k = runs[0], drive_kinematics(ROCKER_BOGIE, "2d")
+    r, k = bump_runs[0], drive_kinematics(ROCKER_BOGIE, "2d")
     n = len(r.column("time"))
     zero = np.zeros(n)
     replay = np.array(k.function.map(n)(r.column("body.vx"), zero, r.column("body.pitch"), zero, zero,
@@ -181,6 +214,57 @@ def test_bump_crossed_in_both_modes():
     error = np.abs(replay - np.array([r.column(f"wheel[{i}].omega") for i in wheels]))
     print(f"replayed wheel rates against the plant's: mean {error.mean():.4f}, largest {error.max():.3f} rad/s")
     assert error.mean() < 0.02
+
+
+def _friction_ratios(r):
+    """The plant's |Fx| / Fn of the loaded wheels (Fn > 1 N) over the run."""
+    fn = np.array([r.column(f"wheel[{i}].Fn") for i in WHEELS_2D])
+    fx = np.array([r.column(f"wheel[{i}].Fx") for i in WHEELS_2D])
+    return np.abs(fx)[fn > 1.0] / fn[fn > 1.0]
+
+
+def test_traction_control_asks_less_friction_than_inverse_kinematics_on_the_bump(bump_runs):
+    """Over the bump the largest friction ratio |Fx| / Fn of a loaded wheel is lower under traction control than
+    under the inverse kinematics (measured 0.235 against 0.798: at mu = 0.8 the inverse kinematics slides a
+    lightly loaded wheel), and so is its 99th percentile."""
+    peak = {m: float(np.max(_friction_ratios(bump_runs[m]))) for m in (1, 2)}
+    q99 = {m: float(np.quantile(_friction_ratios(bump_runs[m]), 0.99)) for m in (1, 2)}
+    print(f"largest |Fx|/Fn: IK {peak[1]:.3f}, traction {peak[2]:.3f}; 99th percentile IK {q99[1]:.3f}, traction "
+          f"{q99[2]:.3f}")
+    assert peak[2] < peak[1] and q99[2] < q99[1]
+    assert peak[2] < 0.5
+
+
+def test_the_load_estimate_follows_the_plants_normal_forces_on_the_bump(bump_runs):
+    """Traction control's load estimate ctrl.Fn_est[i] (the balance at the measured pose for the commanded torques)
+    against the plant's wheel[i].Fn over the bump: median error within 2 % of the load where a wheel carries more
+    than 10 N, mean absolute error below 1 N per wheel (measured: 0.2 N)."""
+    r = bump_runs[2]
+    fn = np.array([r.column(f"wheel[{i}].Fn") for i in WHEELS_2D])
+    err = np.array([r.column(f"ctrl.Fn_est[{i}]") for i in WHEELS_2D]) - fn
+    relative = float(np.median(np.abs(err)[fn > 10] / fn[fn > 10]))
+    print(f"estimate - plant: mean |e| per wheel {np.round(np.mean(np.abs(err), axis=1), 2)} N, largest "
+          f"{np.round(np.max(np.abs(err), axis=1), 1)} N, median relative {relative:.4f}")
+    assert relative < 0.02
+    assert np.all(np.mean(np.abs(err), axis=1) < 1.0)
+
+
+def test_traction_control_in_3d_on_the_bump():
+    """rb_bump3d + rb_drive3d in mode 2 (the 3D balance: least-squares lateral forces): over the bump at 0.2 m/s in
+    15 s, the load estimate within 1 N of the plant's (mean absolute, per wheel; measured 0.19 to 0.22 N) and the
+    largest friction ratio of a loaded wheel below 0.5 (measured 0.235, as in 2D: the bump is the same under both
+    sides)."""
+    wheels = range(1, 7)
+    r = _run("rb_bump3d", "rb_drive3d", 15.0, {"cmd.v": 0.2}, ["body.x"] + [f"wheel[{i}].{q}" for i in wheels for q in
+             ("Fn", "Fx")] + [f"ctrl.Fn_est[{i}]" for i in wheels], **{"ctrl.mode": 2})
+    fn = np.array([r.column(f"wheel[{i}].Fn") for i in wheels])
+    fx = np.array([r.column(f"wheel[{i}].Fx") for i in wheels])
+    error = np.mean(np.abs(np.array([r.column(f"ctrl.Fn_est[{i}]") for i in wheels]) - fn), axis=1)
+    peak = float(np.max(np.abs(fx)[fn > 1.0] / fn[fn > 1.0]))
+    print(f"body.x {r.column('body.x')[-1]:.3f} m, mean |estimate - plant| {np.round(error, 2)} N, peak ratio "
+          f"{peak:.3f}")
+    assert r.column("body.x")[-1] > 2.5
+    assert np.all(error < 1.0) and peak < 0.5
 
 
 def test_turn_flat_scenario_with_the_rocker_bogie(tmp_path):

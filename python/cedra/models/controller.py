@@ -32,15 +32,17 @@ pose, the contact angles and the torques only). Every mode is evaluated at every
 The equations are kinematics.drive_expressions: the same CasADi graph the Python functions evaluate. The FMU
 carries only the generated sample function (no solver, no contact code): fmu_src/controller.c.
 
-Another rover's controller (rover_controller_spec; the rocker-bogie's rb_drive2d, rb_drive3d) has modes 0 and 1
-with the same loops, its wheel rates from cedra.mechanics.drive_kinematics (its own description's Jacobians; a turn
-is skid-steered through them) and its inputs named as its plant's outputs; traction control is CEDRA's only.
+Another rover's controller (rover_controller_spec; the rocker-bogie's rb_drive2d, rb_drive3d) has the same three
+modes with the same loops and helpers, its wheel rates from cedra.mechanics.drive_kinematics (its own description's
+Jacobians; a turn is skid-steered through them), its balance and rolling rates from cedra.mechanics.statics (the
+same formulation, from its description) and its inputs named as its plant's outputs.
 """
 from __future__ import annotations
 
 import casadi as ca
 
 from cedra.mechanics.drive_kinematics import drive_kinematics
+from cedra.mechanics.statics import loads_given_tractions as generic_loads, rover_statics
 from cedra.rover.kinematics import KIN_PARAMS, drive_expressions, drive_symbols
 from cedra.rover.parameters import DEFAULTS, ROVER, STEER_LIMIT
 from cedra.mechanics.transforms import rot_z
@@ -142,8 +144,13 @@ def outputs(dims: str) -> list[Quantity]:
     outs += [Quantity(f"ctrl.omega_ref[{i}]", 0.0, "rad/s", f"wheel {i} rate from the inverse kinematics (Eq. 13)")
              for i in WHEELS]
     outs.append(Quantity("ctrl.v", 0.0, "m/s", "measured forward speed the controller used"))
-    outs += [Quantity(f"ctrl.Fn_est[{i}]", 0.0, "N", f"wheel {i} normal force the quasi-static balance estimates for "
-                      "the commanded torques") for i in WHEELS]
+    return outs + _estimate_outputs()
+
+
+def _estimate_outputs() -> list[Quantity]:
+    """The load estimate's outputs (_estimate); every rover's controller."""
+    outs = [Quantity(f"ctrl.Fn_est[{i}]", 0.0, "N", f"wheel {i} normal force the quasi-static balance estimates for "
+                     "the commanded torques") for i in WHEELS]
     outs.append(Quantity("ctrl.ratio", 0.0, "1", "largest |tau_i| / (R_w Fn_est_i) over the wheels the balance "
                          "loads: the friction the commanded torques ask for"))
     return outs
@@ -164,6 +171,18 @@ def _by_mode(mode, equal_torques, inverse_kinematics, traction):
     return ca.if_else(mode < 0.5, equal_torques, ca.if_else(mode < 1.5, inverse_kinematics, traction))
 
 
+def _select(mode, speed, ik, traction, xd, trim_v, trim_w, period):
+    """The selected mode's six torques and the next states (STATES): the speed PI (torque, integral) for modes 0 and
+    2, the rate loops ((torque, integral) per wheel) and the trims for mode 1, the traction torques for mode 2;
+    every rover's controller."""
+    speed_tau, speed_int = speed
+    tau = [_by_mode(mode, speed_tau, ik[k][0], traction[k]) for k in range(6)]
+    xd_next = ca.vertcat(_by_mode(mode, speed_int, xd[0], speed_int),
+                         *[_by_mode(mode, xd[1 + k], ik[k][1], xd[1 + k]) for k in range(6)],
+                         _by_mode(mode, xd[7], trim_v, xd[7]), _by_mode(mode, xd[8], trim_w, xd[8]), xd[9] + period)
+    return tau, xd_next
+
+
 def _loads(dims, i, p):
     """The quasi-static balance at the measured pose: N = N0 + B T per wheel group (rover.statics)."""
     three = dims == "3d"
@@ -180,14 +199,15 @@ def _group(dims, wheel):
     return GROUPS[dims].index(PAIR.get(wheel, wheel) if dims == "2d" else wheel)
 
 
-def _traction_torques(dims, loads, p, demand):
-    """Mode 2: the summed torque `demand` at one friction ratio on every wheel; a wheel the balance leaves
-    unloaded gets no torque, and every torque stays within +-ctrl.tau_max."""
+def _traction_torques(loads, p, demand, multiplicity, group_of):
+    """Mode 2: the summed torque `demand` at one friction ratio on every wheel (wheel k in group group_of[k - 1],
+    each group standing for multiplicity[g] wheels); a wheel the balance leaves unloaded gets no torque, and every
+    torque stays within +-ctrl.tau_max. Every rover's controller."""
     n0, B = loads
-    weights = p["R_w"] * ca.DM(multiplicity(dims))
+    weights = p["R_w"] * ca.DM(multiplicity)
     _, ratio, normal = equal_ratio_tractions(n0, B, weights, demand, TRACTION_NEWTON_STEPS)
     lim = p["ctrl.tau_max"]
-    return [ca.fmin(ca.fmax(p["R_w"] * ratio * ca.fmax(normal[_group(dims, k)], 0), -lim), lim) for k in WHEELS]
+    return [ca.fmin(ca.fmax(p["R_w"] * ratio * ca.fmax(normal[group_of[k - 1]], 0), -lim), lim) for k in WHEELS]
 
 
 def _spin_guard(tau, omega, rolling, margin):
@@ -201,13 +221,20 @@ def _spin_guard(tau, omega, rolling, margin):
     return tau * ca.fmin(1, ca.fmax(0, 1 - excess / margin))
 
 
+def _body_motion(i, three):
+    """The measured body velocity and angular velocity in the heading's axes (world axes turned by the measured
+    yaw), where the balance takes the pose; every rover's controller."""
+    yaw = i["body.yaw"] if three else 0
+    turn = rot_z(-yaw)
+    velocity = turn @ ca.vertcat(i["body.vx"], i["body.vy"] if three else 0, i["body.vz"])
+    omega = turn @ ca.vertcat(i["body.wx"] if three else 0, i["body.wy"], i["body.wz"] if three else 0)
+    return velocity, omega
+
+
 def _rolling(dims, i, p):
     """The rolling rate of every wheel for the measured body motion, joint rates and contact angles."""
     three = dims == "3d"
-    yaw = i["body.yaw"] if three else 0
-    turn = rot_z(-yaw)                  # world axes -> the heading's, where the balance takes the pose
-    velocity = turn @ ca.vertcat(i["body.vx"], i["body.vy"] if three else 0, i["body.vz"])
-    omega = turn @ ca.vertcat(i["body.wx"] if three else 0, i["body.wy"], i["body.wz"] if three else 0)
+    velocity, omega = _body_motion(i, three)
     return rolling_rates(dims, i["body.pitch"], i["body.roll"] if three else 0,
                          ca.vertcat(i["bogie.theta[1]"], i["bogie.theta[2]"], i["fork.theta4"]),
                          ca.vertcat(i["steer.theta[1]"], i["steer.theta[2]"]) if three else ca.DM.zeros(2),
@@ -221,25 +248,32 @@ def _traction_control(dims, i, p, loads, demand):
     every wheel's rolling rate. A wheel on the ground turns at its rolling rate up to its small slip, so the loop
     adds little there; a wheel the balance loads but the ground does not (lifted, or about to land) has nothing
     else to hold it, and it lands turning at the rate the ground asks for instead of sliding."""
-    rolling = _rolling(dims, i, p)
+    torques = _traction_torques(loads, p, demand, multiplicity(dims), [_group(dims, k) for k in WHEELS])
+    return _guarded(torques, i, p, _rolling(dims, i, p))
+
+
+def _guarded(torques, i, p, rolling):
+    """The traction torques spin-guarded (_spin_guard) plus the loop that holds every wheel at its rolling rate
+    (ctrl.roll_kp), within +-ctrl.tau_max; every rover's controller."""
     lim = p["ctrl.tau_max"]
     out = []
-    for k, t in enumerate(_traction_torques(dims, loads, p, demand)):
+    for k, t in enumerate(torques):
         omega = i[f"wheel[{k + 1}].omega"]
         hold = p["ctrl.roll_kp"] * (rolling[k] - omega)
         out.append(ca.fmin(ca.fmax(_spin_guard(t, omega, rolling[k], p["ctrl.spin_margin"]) + hold, -lim), lim))
     return out
 
 
-def _estimate(dims, loads, p, tau):
-    """The balance's normal forces for the commanded torques (2D: a pair's traction is the mean of its two
-    torques) and the largest friction ratio they ask of a loaded wheel."""
+def _estimate(loads, p, tau, group_of):
+    """The balance's normal forces for the commanded torques (wheel k in group group_of[k - 1]; a group's traction
+    is the mean of its wheels' torques) and the largest friction ratio they ask of a loaded wheel; every rover's
+    controller."""
     n0, B = loads
-    members = {g: [k for k in WHEELS if _group(dims, k) == g] for g in range(len(GROUPS[dims]))}
+    members = {g: [k for k in WHEELS if group_of[k - 1] == g] for g in range(n0.numel())}
     traction = ca.vertcat(*[sum(tau[k - 1] for k in m) / (len(m) * p["R_w"]) for m in members.values()])
     normal = n0 + B @ traction
     ratios = [ca.if_else(normal[g] > 0, ca.fabs(traction[g]) / ca.fmax(normal[g], 1e-9), 0) for g in members]
-    return [normal[_group(dims, k)] for k in WHEELS], ca.mmax(ca.vertcat(*ratios))
+    return [normal[group_of[k - 1]] for k in WHEELS], ca.mmax(ca.vertcat(*ratios))
 
 
 def _commands_and_trims(i, p, xd, three):
@@ -292,11 +326,8 @@ def sample_function(dims: str) -> ca.Function:
     mode = p["ctrl.mode"]
     loads = _loads(dims, i, p)
     traction_tau = _traction_control(dims, i, p, loads, 6 * speed_tau)
-    tau = [_by_mode(mode, speed_tau, ik[k][0], traction_tau[k]) for k in range(6)]
-    xd_next = ca.vertcat(_by_mode(mode, speed_int, xd[0], speed_int),
-                         *[_by_mode(mode, xd[1 + k], ik[k][1], xd[1 + k]) for k in range(6)],
-                         _by_mode(mode, xd[7], trim_v, xd[7]), _by_mode(mode, xd[8], trim_w, xd[8]), xd[9] + T)
-    fn_est, ratio = _estimate(dims, loads, p, tau)
+    tau, xd_next = _select(mode, (speed_tau, speed_int), ik, traction_tau, xd, trim_v, trim_w, T)
+    fn_est, ratio = _estimate(loads, p, tau, [_group(dims, k) for k in WHEELS])
     y = tau + ([steer[0], steer[1]] if three else []) + [rates[k] for k in range(6)] + [v] + fn_est + [ratio]
     assert len(y) == len(outs)
     return ca.Function("cedra_sample", [inp, par, xd], [ca.vertcat(*y), xd_next], ["inp", "par", "xd"],
@@ -332,9 +363,9 @@ def controller_spec(dims: str = "3d", name: str | None = None, rover: str = "ced
 
 # ---------------------------------------------------------------- any other rover: its description's kinematics
 
-ROVER_MODES = ("equal_torques", "inverse_kinematics")      # modes 0, 1 (traction control, 2, is CEDRA's only)
+ROVER_MODES = ("equal_torques", "inverse_kinematics", "traction_control")      # modes 0, 1, 2
 _ROVER_CTRL = ("ctrl.period", "ctrl.tau_max", "ctrl.ramp_time", "ctrl.speed_kp", "ctrl.speed_ki", "ctrl.rate_kp",
-               "ctrl.rate_ki", "ctrl.trim_ki")
+               "ctrl.rate_ki", "ctrl.trim_ki", "ctrl.spin_margin", "ctrl.roll_kp")
 
 
 def _rover_kind(rover: str):
@@ -345,21 +376,24 @@ def _rover_kind(rover: str):
 
 
 def rover_params(rover: str, dims: str) -> list[Quantity]:
-    """The parameters of `rover`'s controller: CEDRA's controller's loops (no traction mode) and the geometry its
-    inverse kinematics depends on."""
+    """The parameters of `rover`'s controller: CEDRA's controller's loops and the geometry, masses and stops its
+    inverse kinematics and its quasi-static balance depend on."""
     kind = _rover_kind(rover)
     ours = {q.name: q for q in params()}
     table = {q.name: q for q in kind.parameters}
     mode = Quantity("ctrl.mode", 1, "1", "0 equal torques from a PI on the forward speed (straight: the yaw rate "
                     "command acts in mode 1); 1 inverse kinematics (the rover's wheel Jacobians, skid steering) with "
-                    "a PI loop per wheel rate", 0, len(ROVER_MODES) - 1, type="Integer")
+                    "a PI loop per wheel rate; 2 traction control: the speed PI's summed torque distributed for the "
+                    "least largest friction ratio (straight)", 0, len(ROVER_MODES) - 1, type="Integer")
     trim = ours["ctrl.trim_ki"]
     trim = Quantity(trim.name, trim.start, trim.unit, "inverse-kinematics mode: integral gain of the speed and "
                     "yaw-rate trims (0: the inverse kinematics open loop)", trim.min, trim.max)
     loops = [{"ctrl.trim_ki": trim}.get(n, ours[n]) for n in _ROVER_CTRL]
     loops.insert(1, mode)                                       # after ctrl.period, as in CEDRA's
+    kinematics = drive_kinematics(kind, dims).params
+    names = kinematics + tuple(n for n in rover_statics(kind, dims).params if n not in kinematics)
     geometry = [Quantity(n, table[n].start, table[n].unit, table[n].description + " (the controller's kinematics)",
-                         table[n].min, table[n].max) for n in drive_kinematics(kind, dims).params]
+                         table[n].min, table[n].max) for n in names]
     return loops + geometry
 
 
@@ -376,6 +410,8 @@ def rover_inputs(rover: str, dims: str) -> list[Quantity]:
         ins += [Quantity("body.vy", 0.0, "m/s", "measured: body velocity along world Y"),
                 Quantity("body.yaw", 0.0, "rad", "measured: body yaw"),
                 Quantity("body.wx", 0.0, "rad/s", "measured: body angular velocity about world X")]
+    # the traction mode's rolling rates need the body's vertical motion too (an IMU's)
+    ins.append(Quantity("body.vz", 0.0, "m/s", "measured: body velocity along world Z"))
     ins.append(Quantity("body.wy", 0.0, "rad/s", "measured: body angular velocity about world Y"))
     if three:
         ins.append(Quantity("body.wz", 0.0, "rad/s", "measured: body yaw rate (angular velocity about world Z)"))
@@ -396,12 +432,29 @@ def rover_outputs(rover: str, dims: str) -> list[Quantity]:
     outs += [Quantity(f"ctrl.omega_ref[{i}]", 0.0, "rad/s", f"wheel {i} rate from the inverse kinematics (its "
                       "rolling rate for the trimmed commands)") for i in WHEELS]
     outs.append(Quantity("ctrl.v", 0.0, "m/s", "measured forward speed the controller used"))
-    return outs
+    return outs + _estimate_outputs()
+
+
+def _rover_loads_and_rolling(kind, dims, i, p):
+    """The quasi-static balance of `kind` at the measured pose, N = N0 + B T per wheel group, and every wheel's
+    rolling rate for the measured motion (cedra.mechanics.statics)."""
+    st = rover_statics(kind, dims)
+    dk = drive_kinematics(kind, dims)
+    three = dims == "3d"
+    zero = ca.SX(0)
+    pose = (i["body.pitch"], i["body.roll"] if three else zero, ca.vertcat(*[i[a] for a in dk.angle_outputs]),
+            ca.vertcat(*[i[f"wheel[{k}].psi_R"] for k in WHEELS]), ca.vertcat(*[p[n] for n in st.params]))
+    A, b = st.balance(*pose)
+    n0, B, _, _ = generic_loads(A, b, len(st.groups), three)
+    velocity, omega = _body_motion(i, three)
+    rates = ca.vertcat(*[i[r] if r is not None else 0 for r in dk.rate_outputs])
+    return (n0, B), st.rolling(*pose, velocity, omega, rates)
 
 
 def rover_sample_function(rover: str, dims: str) -> ca.Function:
     """cedra_sample(inp, par, xd) -> (y, xd_next) of `rover`'s controller; xd as in STATES (the loops of CEDRA's
-    modes 0 and 1; the wheel rates from cedra.mechanics.drive_kinematics)."""
+    three modes; the wheel rates from cedra.mechanics.drive_kinematics, the balance and the rolling rates from
+    cedra.mechanics.statics)."""
     kind = _rover_kind(rover)
     dk = drive_kinematics(kind, dims)
     ins, pars, outs = rover_inputs(rover, dims), rover_params(rover, dims), rover_outputs(rover, dims)
@@ -421,23 +474,22 @@ def rover_sample_function(rover: str, dims: str) -> ca.Function:
     speed_tau, speed_int = _pi(cmd_v - v, xd[0], p["ctrl.speed_kp"], p["ctrl.speed_ki"], lim, T)
     ik = [_pi(rates[k] - i[f"wheel[{k + 1}].omega"], xd[1 + k], p["ctrl.rate_kp"], p["ctrl.rate_ki"], lim, T)
           for k in range(6)]
-    equal = p["ctrl.mode"] < 0.5
-
-    def pick(a, b):
-        return ca.if_else(equal, a, b)
-
-    tau = [pick(speed_tau, ik[k][0]) for k in range(6)]
-    xd_next = ca.vertcat(pick(speed_int, xd[0]), *[pick(xd[1 + k], ik[k][1]) for k in range(6)],
-                         pick(xd[7], trim_v), pick(xd[8], trim_w), xd[9] + T)
-    y = tau + [rates[k] for k in range(6)] + [v]
+    mode = p["ctrl.mode"]
+    st = rover_statics(kind, dims)
+    loads, rolling = _rover_loads_and_rolling(kind, dims, i, p)
+    traction = _guarded(_traction_torques(loads, p, 6 * speed_tau, st.multiplicity, st.group_of), i, p, rolling)
+    tau, xd_next = _select(mode, (speed_tau, speed_int), ik, traction, xd, trim_v, trim_w, T)
+    fn_est, ratio = _estimate(loads, p, tau, st.group_of)
+    y = tau + [rates[k] for k in range(6)] + [v] + fn_est + [ratio]
     assert len(y) == len(outs)
     return ca.Function("cedra_sample", [inp, par, xd], [ca.vertcat(*y), xd_next], ["inp", "par", "xd"],
                        ["y", "xd_next"])
 
 
 def rover_controller_spec(rover: str, dims: str = "3d", name: str | None = None) -> ModelSpec:
-    """The drive controller of a rover other than CEDRA: modes 0 and 1 with the inverse kinematics of its own
-    description (cedra.mechanics.drive_kinematics); no steering (a turn is skid-steered through the wheel rates)."""
+    """The drive controller of a rover other than CEDRA: modes 0, 1 and 2 with the inverse kinematics, the
+    quasi-static balance and the rolling rates of its own description (cedra.mechanics.drive_kinematics,
+    cedra.mechanics.statics); no steering (a turn is skid-steered through the wheel rates)."""
     kind = _rover_kind(rover)
     if kind.steering:
         raise ValueError(f"rover {rover}: a controller for a rover with steering joints is CEDRA's only")
@@ -445,8 +497,8 @@ def rover_controller_spec(rover: str, dims: str = "3d", name: str | None = None)
         name=name or f"{rover}_drive{dims[0]}d", block="controller",
         description=f"{rover} drive controller ({dims}): the inverse kinematics of the rover's own description "
         "(every wheel's rolling rate for the commanded speed and yaw rate at the measured pose, joints and contact "
-        "angles; skid steering) with a PI loop per wheel rate, or equal torques from a speed loop; sampled every "
-        "ctrl.period",
+        "angles; skid steering) with a PI loop per wheel rate, equal torques from a speed loop, or traction control "
+        "(the speed loop's summed torque at one friction ratio on every wheel); sampled every ctrl.period",
         q_names=[], z_names=[], params=rover_params(rover, dims), inputs=rover_inputs(rover, dims),
         outputs=rover_outputs(rover, dims), q_start=[], settle_idx=[],
         functions={"cedra_sample": rover_sample_function(rover, dims)}, d_names=list(STATES), stop_time=15.0,

@@ -262,20 +262,26 @@ def print_step_cost(build: Path, stop_time=8.0) -> int:
 
 
 def print_controller_cost(build: Path) -> int:
-    """The drive controller's cost per sample over the bump run, in each mode (cedra.reports.traction)."""
-    from cedra.reports.traction import MODES, run_modes, sample_cost
-    if not all((build / f"{n}.fmu").exists() for n in ("bump2d", "drive2d")):
-        print(f"\ncontroller cost: {build}/bump2d.fmu or drive2d.fmu not found (python -m cedra build)")
+    """The drive controllers' cost per sample over the bump run, in each mode (cedra.reports.traction): CEDRA's
+    drive2d on bump2d and the rocker-bogie's rb_drive2d on rb_bump2d."""
+    from cedra.reports.traction import MODES, rover_of, run_modes, sample_cost
+    plants = ("bump2d", "rb_bump2d")
+    missing = [n for plant in plants for n in (plant, rover_of(plant)[0]) if not (build / f"{n}.fmu").exists()]
+    if missing:
+        print(f"\ncontroller cost: {', '.join(f'{build}/{n}.fmu' for n in missing)} not found (python -m cedra build)")
         return 1
-    print("\nthe drive controller's cost per sample: the bump run (bump2d + drive2d, 15 s, 0.01 s samples) in each "
-          "mode, every sample's measurements replayed 3 times through drive2d (fmi2DoStep through FMPy)")
-    print("| mode | samples | median us | 99.9 % us | worst us |")
-    print("|---|---|---|---|---|")
-    runs = run_modes(build, "bump2d")
-    for mode in MODES:
-        c = sample_cost(runs[mode], build, mode)
-        print(f"| {MODES[mode]} | {c['samples']} | {c['median_us']:.1f} | {c['p999_us']:.1f} | "
-              f"{c['max_us']:.1f} |")
+    print("\nthe drive controllers' cost per sample: the bump run (bump2d + drive2d, rb_bump2d + rb_drive2d, 15 s, "
+          "0.01 s samples) in each mode, every sample's measurements replayed 3 times through the controller "
+          "(fmi2DoStep through FMPy)")
+    print("| controller | mode | samples | median us | 99.9 % us | worst us |")
+    print("|---|---|---|---|---|---|")
+    for plant in plants:
+        controller = rover_of(plant)[0]
+        runs = run_modes(build, plant)
+        for mode in MODES:
+            c = sample_cost(runs[mode], build, mode, controller=controller)
+            print(f"| {controller} | {MODES[mode]} | {c['samples']} | {c['median_us']:.1f} | {c['p999_us']:.1f} | "
+                  f"{c['max_us']:.1f} |")
     return 0
 
 

@@ -1,9 +1,10 @@
 """CEDRA against the rocker-bogie (docs/rovers.md): `python -m cedra report rovers [--build build] [--out DIR]
 [--quick] [--quiet]`.
 
-1. **The paper's run for both rovers and both controllers**: each planar rover (bump2d, rb_bump2d) with its drive
-   controller FMU (drive2d, rb_drive2d) in the project's co-simulation master, ctrl.mode 0 (equal torques from the
-   speed loop, the paper's run) and 1 (the inverse kinematics with a rate loop per wheel), 0.2 m/s, 15 s, on the
+1. **The paper's run for both rovers and the three controllers**: each planar rover (bump2d, rb_bump2d) with its
+   drive controller FMU (drive2d, rb_drive2d) in the project's co-simulation master, ctrl.mode 0 (equal torques from
+   the speed loop, the paper's run), 1 (the inverse kinematics with a rate loop per wheel) and 2 (traction control:
+   the speed loop's summed torque at one friction ratio on every wheel), 0.2 m/s, 15 s, on the
    paper's bump and on flat ground (the same scene with terrain_h = 0). Per run: when the last wheel center
    passes the bump's end, the peak wheel load, the wheel load spread (max / min of the six wheels' loads, on flat
    ground in the steady run; over the bump the largest load against the rover's weight share), the mean slip
@@ -11,7 +12,7 @@
 2. **The maps** (not with --quick): the six sweeps examples/sweeps/rovers/{bump,step,stairs}_{cedra,rb}.toml,
    a terrain's height (and the bump's width) against mu for one rover (drives, chassis contact, the main job's
    equal torques), and the three of examples/sweeps/rovers/climb_controllers_{bump,step,stairs}.toml
-   (examples/rovers_climb.py: both rovers with their drive controller FMUs in both modes, on the plants with
+   (examples/rovers_climb.py: both rovers with their drive controller FMUs in the three modes, on the plants with
    drives and chassis contact), run afresh
    (cedra.run.sweep.execute, tables in out/rovers/) and drawn side by side (<out>/rovers_maps.png,
    <out>/rovers_controllers.png) with, per terrain and mu, the highest obstacle each rover gets over. The six
@@ -32,7 +33,7 @@ from cedra.run.scenario import EXAMPLES, fmu
 from cedra.run.sweep import obstacle_end, variant_fmu
 
 ROVERS = {"CEDRA": ("bump2d", "drive2d", "cedra"), "rocker-bogie": ("rb_bump2d", "rb_drive2d", "rb")}
-CONTROLLERS = {"equal torques": 0, "inverse kinematics": 1}
+CONTROLLERS = {"equal torques": 0, "inverse kinematics": 1, "traction control": 2}
 TERRAINS = {"bump": "the paper's bump (widths 1 to 6 R_w)", "step": "a sharp step", "stairs": "4 stairs (run 4 R_w)"}
 OBSTACLES = ("bump", "step", "stairs")     # the controllers' maps (examples/rovers_climb.py)
 SPEED, STOP_TIME, STEP = 0.2, 15.0, 0.01
@@ -271,7 +272,7 @@ def draw_controllers(maps, path: Path) -> Path:
     from cedra.run.sweep_map import YES_NO_COLOURS
     keys = [("controllers", kind) for kind in OBSTACLES if ("controllers", kind) in maps]
     panels = [(rover, mode) for rover in ROVERS for mode in CONTROLLERS]
-    fig, axes = plt.subplots(len(keys), len(panels), figsize=(3.2 * len(panels), 3.0 * len(keys)), squeeze=False,
+    fig, axes = plt.subplots(len(keys), len(panels), figsize=(2.7 * len(panels), 2.8 * len(keys)), squeeze=False,
                              sharey=True)
     for row, key in enumerate(keys):
         for col, (rover, mode) in enumerate(panels):
@@ -288,7 +289,7 @@ def draw_controllers(maps, path: Path) -> Path:
             ax.margins(0.12)
     fig.legend(handles=[Patch(color=YES_NO_COLOURS[v], label=f"climbed: {v}") for v in ("yes", "no")],
                loc="lower center", ncol=2, fontsize=8)
-    fig.suptitle("Each rover with its drive controller in both modes (drives, chassis contact, 0.2 m/s, 15 s, "
+    fig.suptitle("Each rover with its drive controller in its three modes (drives, chassis contact, 0.2 m/s, 15 s, "
                  "compliant ground)", fontsize=10)
     fig.tight_layout(rect=(0, 0.05, 1, 0.95))
     fig.savefig(path, dpi=100)
@@ -301,7 +302,7 @@ def draw_controllers(maps, path: Path) -> Path:
 def write(out: Path, rows, maps, command, wall, load_at_start, checks=None) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# CEDRA and the rocker-bogie", "", provenance(command, wall, load_at_start), "",
-             "## The paper's run, both rovers, both controllers", "",
+             "## The paper's run, both rovers, three controllers", "",
              f"Each planar rover's shipped scene (bump2d, rb_bump2d: no drives, no chassis contact, as the paper's "
              f"run) with its drive controller FMU at {SPEED} m/s for {STOP_TIME:g} s on the paper's "
              "bump and on flat ground (the same scene, terrain_h = 0); the loads' spread on flat ground is max / "
@@ -320,7 +321,7 @@ def write(out: Path, rows, maps, command, wall, load_at_start, checks=None) -> P
         lines += ["", "![the maps](rovers_maps.png)", ""]
         draw_controllers(maps, out / "rovers_controllers.png")
         lines += ["## The controller as a dimension", "",
-                  "Each rover with its drive controller FMU (drive2d, rb_drive2d) in both modes, the plants with "
+                  "Each rover with its drive controller FMU (drive2d, rb_drive2d) in its three modes, the plants with "
                   "drives and chassis contact, 0.2 m/s, 15 s (examples/rovers_climb.py; the sweeps "
                   "examples/sweeps/rovers/climb_controllers_*.toml): the highest obstacle climbed per mu.", ""]
         lines += controllers_table(maps)
@@ -337,7 +338,7 @@ def main(args) -> int:
     t0 = time.perf_counter()
     log = (lambda *a, **k: None) if args.quiet else print
     build = getattr(args, "build", "build")
-    log("the paper's run, both rovers and controllers:")
+    log("the paper's run, both rovers, three controllers:")
     rows = measures(build, log=log)
     maps = checks = None
     if not args.quick:

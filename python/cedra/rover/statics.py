@@ -26,6 +26,8 @@ from functools import lru_cache
 
 import casadi as ca
 
+from cedra.mechanics.statics import equal_ratio_tractions  # noqa: F401  (this module's, for CEDRA)
+from cedra.mechanics.statics import loads_given_tractions as generic_loads
 from cedra.mechanics.transforms import rot_x, rot_y, rot_z
 from cedra.rover.kinematics import contact_frame
 from cedra.rover.mechanism import FULL_Q, IDX, describe
@@ -123,39 +125,9 @@ def balance(dims: str, pitch, roll, theta, steer, psi, par):
 
 def loads_given_tractions(dims: str, A, b):
     """The loads as affine functions of the tractions T: (N0, B) with N = N0 + B T, and (a0, a_T) with the
-    acceleration a = a0 + a_T T. 3D: the lateral forces are the least-squares ones the balance allows."""
-    n = len(GROUPS[dims])
-    cols_T = list(range(n, 2 * n))
-    cols_y = [k for k in range(A.shape[1]) if k not in cols_T]        # N, (L), a
-    A_T, A_y = A[:, cols_T], A[:, cols_y]
-    rhs = ca.horzcat(b, -A_T)                                          # y = Y[:, 0] + Y[:, 1:] T
-    if dims == "2d":
-        Y = ca.solve(A_y, rhs)
-    else:
-        # min 0.5 |L|^2 subject to A_y y = rhs: its KKT system (N and a are fixed by the balance)
-        ny, m = A_y.shape[1], A_y.shape[0]
-        w = ca.diag(ca.vertcat(ca.DM.zeros(n), ca.DM.ones(n), ca.DM.zeros(1)))
-        kkt = ca.vertcat(ca.horzcat(w, A_y.T), ca.horzcat(A_y, ca.SX.zeros(m, m)))
-        Y = ca.solve(kkt, ca.vertcat(ca.SX.zeros(ny, rhs.shape[1]), rhs))[:ny, :]
-    return Y[:n, 0], Y[:n, 1:], Y[-1, 0], Y[-1, 1:]
-
-
-def equal_ratio_tractions(N0, B, weights, demand, iterations: int):
-    """The tractions T with T_i / N_i(T) = s for every group and sum(weights_i T_i) = demand. N = N0 + B T gives
-    T = s (I - s B)^-1 N0, so s is the root of h(s) = s weights' (I - s B)^-1 N0 - demand: a FIXED number of
-    Newton steps from s = demand / weights' N0 (the total load changes with the tractions only through the tilted
-    contact normals, so h is nearly linear and the start is close). Returns T, s, N."""
-    n = N0.numel()
-    eye = ca.DM.eye(n)
-    s = demand / ca.dot(weights, N0)
-    for _ in range(iterations):
-        loads = ca.solve(eye - s * B, N0)                    # N(s)
-        slope = ca.solve(eye - s * B, B @ loads)             # dN/ds
-        h = s * ca.dot(weights, loads) - demand
-        dh = ca.dot(weights, loads) + s * ca.dot(weights, slope)
-        s = s - h / dh
-    loads = ca.solve(eye - s * B, N0)
-    return s * loads, s, loads
+    acceleration a = a0 + a_T T. 3D: the lateral forces are the least-squares ones the balance allows
+    (cedra.mechanics.statics.loads_given_tractions)."""
+    return generic_loads(A, b, len(GROUPS[dims]), dims == "3d")
 
 
 @lru_cache(maxsize=None)
