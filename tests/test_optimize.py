@@ -133,6 +133,7 @@ def test_short_solve_converges_and_replays(tmp_path):
     assert s["intervals"] == 2
     assert s["replay_ok"]
     assert s["replay_deviation"] < 1e-4
+    assert s["node_deviation"] < 1e-4           # converged: the nodes are on the path the FMU replays
     for f in ("report.md", "climb.png", "result.json", "torques.csv"):
         assert (tmp_path / "out" / f).exists()
     tau = np.loadtxt(tmp_path / "out" / "torques.csv", delimiter=",", skiprows=1)
