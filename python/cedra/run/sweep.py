@@ -431,8 +431,8 @@ def _remove_fmu_files():
 
 
 def _scratch_directory() -> str | None:
-    """The Dask worker's own directory, which Dask removes when the worker closes (a closing worker process is
-    terminated, so an atexit handler does not run there); None outside a worker."""
+    """The Dask worker's own directory, which Dask removes when the worker closes and purges after a killed worker
+    (a killed process runs no atexit handler); None outside a worker."""
     try:
         from distributed import get_worker
         return get_worker().local_directory
