@@ -133,11 +133,7 @@ def _balance(rover, q, qd, p, psi, names, planar, free, group_of, n_groups, late
         normal, tangent = _contact(wheel, psi[wheel.index - 1])
         force = N[k] * normal + T[k] * tangent + L[k] * wheel.axle
         force_work += ca.dot(force, _rim_velocity(wheel, normal, p["R_w"]))
-    heading = ca.DM([1, 0, 0])                              # the pose is taken at yaw = 0
-    inertial_work = -a * sum(b.mass * ca.dot(heading, ca.jtimes(b.position, q, qd)) for b in rover.bodies)
-    gravity_work = -ca.dot(ca.gradient(sum(b.mass * p["g"] * b.position[2] for b in rover.bodies), q), qd)
-    joint_work = ca.dot(ca.substitute(rover.coordinate_torques, qd, ca.DM.zeros(qd.numel())), qd)
-    work = force_work + inertial_work + gravity_work + joint_work
+    work = with_body_work(force_work, rover, q, qd, a, p["g"])
     residual = []
     for coordinate in free:                                 # the generalized force along each free direction
         direction = ca.DM([1.0 if planar.get(n, n) == coordinate else 0.0 for n in names])
@@ -145,6 +141,18 @@ def _balance(rover, q, qd, p, psi, names, planar, free, group_of, n_groups, late
     residual = ca.vertcat(*residual)
     u = ca.vertcat(N, T, L, a) if lateral else ca.vertcat(N, T, a)
     return ca.jacobian(residual, u), -ca.substitute(residual, u, ca.DM.zeros(u.numel()))
+
+
+def with_body_work(force_work, rover, q, qd, a, g):
+    """The contact forces' virtual power `force_work` plus that of everything else, linear in the rates qd: the
+    d'Alembert force -m a along the heading on every body (the pose is taken at yaw = 0), gravity, and the joints'
+    own torques at zero rates (springs, stops). Every rover's balance, CEDRA's own (cedra.rover.statics) too;
+    summed in this order, so the generated expressions (and the controllers' GUIDs) are the same for both."""
+    heading = ca.DM([1, 0, 0])
+    inertial_work = -a * sum(b.mass * ca.dot(heading, ca.jtimes(b.position, q, qd)) for b in rover.bodies)
+    gravity_work = -ca.dot(ca.gradient(sum(b.mass * g * b.position[2] for b in rover.bodies), q), qd)
+    joint_work = ca.dot(ca.substitute(rover.coordinate_torques, qd, ca.DM.zeros(qd.numel())), qd)
+    return force_work + inertial_work + gravity_work + joint_work
 
 
 def _rolling(rover, kind, q, qd, p, psi, joints, planar):

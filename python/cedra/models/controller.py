@@ -291,12 +291,16 @@ def _commands_and_trims(i, p, xd, three):
     return cmd_v, cmd_yaw, v, trim_v, trim_w
 
 
+def _sample_symbols(ins, pars):
+    """A controller's sample arguments (inp, par, xd as in STATES) and its inputs and parameters by name."""
+    inp, par, xd = ca.SX.sym("inp", len(ins)), ca.SX.sym("par", len(pars)), ca.SX.sym("xd", len(STATES))
+    return inp, par, xd, {q.name: inp[k] for k, q in enumerate(ins)}, {q.name: par[k] for k, q in enumerate(pars)}
+
+
 def sample_function(dims: str) -> ca.Function:
     """cedra_sample(inp, par, xd) -> (y, xd_next); xd as in STATES."""
     ins, pars, outs = inputs(dims), params(), outputs(dims)
-    inp, par, xd = ca.SX.sym("inp", len(ins)), ca.SX.sym("par", len(pars)), ca.SX.sym("xd", len(STATES))
-    i = {q.name: inp[k] for k, q in enumerate(ins)}
-    p = {q.name: par[k] for k, q in enumerate(pars)}
+    inp, par, xd, i, p = _sample_symbols(ins, pars)
     three = dims == "3d"
     T, lim = p["ctrl.period"], p["ctrl.tau_max"]
     cmd_v, cmd_yaw, v, trim_v, trim_w = _commands_and_trims(i, p, xd, three)
@@ -458,9 +462,7 @@ def rover_sample_function(rover: str, dims: str) -> ca.Function:
     kind = _rover_kind(rover)
     dk = drive_kinematics(kind, dims)
     ins, pars, outs = rover_inputs(rover, dims), rover_params(rover, dims), rover_outputs(rover, dims)
-    inp, par, xd = ca.SX.sym("inp", len(ins)), ca.SX.sym("par", len(pars)), ca.SX.sym("xd", len(STATES))
-    i = {q.name: inp[k] for k, q in enumerate(ins)}
-    p = {q.name: par[k] for k, q in enumerate(pars)}
+    inp, par, xd, i, p = _sample_symbols(ins, pars)
     three = dims == "3d"
     T, lim = p["ctrl.period"], p["ctrl.tau_max"]
     cmd_v, cmd_yaw, v, trim_v, trim_w = _commands_and_trims(i, p, xd, three)

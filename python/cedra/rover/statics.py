@@ -28,6 +28,7 @@ import casadi as ca
 
 from cedra.mechanics.statics import equal_ratio_tractions  # noqa: F401  (this module's, for CEDRA)
 from cedra.mechanics.statics import loads_given_tractions as generic_loads
+from cedra.mechanics.statics import with_body_work
 from cedra.mechanics.transforms import rot_x, rot_y, rot_z
 from cedra.rover.kinematics import contact_frame
 from cedra.rover.mechanism import FULL_Q, IDX, describe
@@ -98,11 +99,7 @@ def _balance_function(dims: str) -> ca.Function:
         velocity = wheel.velocity + ca.cross(wheel.omega, point - wheel.center)
         force = N[k] * frame[:, 2] + T[k] * frame[:, 0] + L[k] * frame[:, 1]
         force_work += ca.dot(force, velocity)
-    heading = ca.DM([1, 0, 0])                              # the pose is taken at yaw = 0
-    inertial_work = -a * sum(b.mass * ca.dot(heading, ca.jtimes(b.position, q, qd)) for b in rover.bodies)
-    gravity_work = -ca.dot(ca.gradient(sum(b.mass * p["g"] * b.position[2] for b in rover.bodies), q), qd)
-    joint_work = ca.dot(ca.substitute(rover.coordinate_torques, qd, ca.DM.zeros(qd.numel())), qd)
-    work = force_work + inertial_work + gravity_work + joint_work
+    work = with_body_work(force_work, rover, q, qd, a, p["g"])
     residual = []
     for names in FREE[dims]:                                # generalized force along each free direction
         direction = ca.DM.zeros(len(FULL_Q))
