@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-from cedra.models.controller import TRACTION_NEWTON_STEPS, sample_function
+from cedra.mechanics.statics import equal_ratio_tractions
+from cedra.models.controller import STATES, TRACTION_NEWTON_STEPS, _spin_guard, inputs, params, sample_function
 from cedra.rover.mechanism import FULL_Q, IDX, describe
 from cedra.rover.parameters import DEFAULTS
 from cedra.rover.statics import GROUPS, STATICS_PARAMS, balance, multiplicity, rolling_rates, traction_function
@@ -144,6 +145,72 @@ def test_the_fixed_iteration_distribution_is_the_lp_optimum(dims):
     print(f"{len(gaps)} instances, largest relative gap to the LP {max(np.abs(gaps)):.2e}")
     assert len(gaps) >= 20
     assert max(np.abs(gaps)) < 1e-6
+
+
+def test_a_demand_past_ratio_max_is_shared_at_the_loads_of_ratio_max():
+    """A demand the capped ratio cannot pass (a stall) keeps the loads the balance gives at ratio_max and shares
+    the demand in proportion to them; a demand within it is the uncapped solution; the two meet at the cap."""
+    f = traction_function("2d", TRACTION_NEWTON_STEPS)
+    out = f(-0.05, 0.0, [0.05, 0.05, DEFAULTS["fork_theta4_ref"]], [0.0, 0.0], [-0.3, 0, -0.3, 0, 0, 0], PAR, 1.0)
+    N0, B = ca.DM(out[3]), ca.DM(out[4])        # wheels 1, 3 on a 17 degree face
+    weights = DEFAULTS["R_w"] * ca.DM(multiplicity("2d"))
+    cap = 0.6
+    held = {sign: np.array(ca.solve(ca.DM.eye(4) - sign * cap * B, N0)).ravel() for sign in (1, -1)}
+    passes = {sign: cap * float(weights.T @ held[sign]) for sign in (1, -1)}    # the demand the cap passes
+    assert held[1].min() > 0
+    for demand in (0.3 * passes[1], 0.999 * passes[1], 1.001 * passes[1], 4 * passes[1], -0.5 * passes[-1],
+                   -4 * passes[-1]):
+        T, s, N = (np.array(x).ravel() for x in equal_ratio_tractions(N0, B, weights, demand, TRACTION_NEWTON_STEPS,
+                                                                      cap))
+        T0, s0, _ = (np.array(x).ravel() for x in equal_ratio_tractions(N0, B, weights, demand,
+                                                                        TRACTION_NEWTON_STEPS))
+        assert abs(float(weights.T @ T) - demand) < 1e-9 * abs(demand)
+        if abs(demand) <= passes[np.sign(demand)]:
+            assert np.allclose(T, T0, rtol=1e-9) and abs(s - s0) < 1e-9
+        else:
+            assert np.allclose(N, held[np.sign(demand)], rtol=1e-12)
+            assert np.allclose(T, s * N) and abs(s) > cap
+    passes = passes[1]
+    near = [np.array(equal_ratio_tractions(N0, B, weights, d, TRACTION_NEWTON_STEPS, cap)[0]).ravel()
+            for d in (passes * (1 - 1e-7), passes * (1 + 1e-7))]
+    assert np.allclose(near[0], near[1], rtol=1e-5)                        # continuous at the cap
+
+
+@pytest.mark.parametrize("dims", ["2d", "3d"])
+def test_the_spin_guard_settles_a_sliding_wheel(dims):
+    """A wheel sliding against a constant friction torque, under the sampled spin guard and rolling-rate hold
+    (its own spin inertia only, one controller period per step, the controller's function in the loop) settles
+    to one rate, whatever the speed loop asks. The guard faded over the bare ctrl.spin_margin (10 rad/s, the
+    same loop in Python) swaps between two rates for good at the largest demand's torque: the test can fail."""
+    f = sample_function(dims)
+    ins, pars = inputs(dims), params()
+    p = {q.name: q.start for q in pars} | {"ctrl.mode": 2}
+    J = DEFAULTS["m_w"] * DEFAULTS["R_w"] ** 2 / 2
+    T, friction = p["ctrl.period"], 0.5
+
+    def controller(u):                   # wheel 1's torque at its rate, the speed loop asking u N.m per wheel
+        xd = np.zeros(len(STATES))
+        xd[0] = u / p["ctrl.speed_ki"]   # the integral that asks u at no speed error
+        inp = {q.name: q.start for q in ins} | {"cmd.v": 0.0}
+        return lambda omega: float(f([(inp | {"wheel[1].omega": omega})[q.name] for q in ins],
+                                     [p[q.name] for q in pars], xd)[0][0])
+
+    def settle(torque_at):
+        omega, rates = 0.0, []
+        for _ in range(300):
+            omega += T / J * (torque_at(omega) - friction)
+            rates.append(omega)
+        return np.array(rates[-50:])
+
+    for u in (1.0, 2.0, 4.0):
+        tau = controller(u)
+        rates = settle(tau)
+        assert tau(0.0) > friction and np.ptp(rates) < 1e-6, (u, tau(0.0), rates[-4:])
+    full = controller(4.0)(0.0)          # wheel 1's share of the largest demand (the speed loop at its limit)
+    assert full > 2.0
+    bare = settle(lambda omega: float(_spin_guard(full, omega, 0.0, p["ctrl.spin_margin"]))
+                  - p["ctrl.roll_kp"] * omega)
+    assert np.ptp(bare) > 1.0
 
 
 def test_a_sample_has_a_fixed_cost():

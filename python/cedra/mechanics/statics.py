@@ -200,19 +200,35 @@ def loads_given_tractions(A, b, n_groups: int, lateral: bool):
     return Y[:n, 0], Y[:n, 1:], Y[-1, 0], Y[-1, 1:]
 
 
-def equal_ratio_tractions(N0, B, weights, demand, iterations: int):
+def equal_ratio_tractions(N0, B, weights, demand, iterations: int, ratio_max=None):
     """The tractions T with T_i / N_i(T) = s for every group and sum(weights_i T_i) = demand. N = N0 + B T gives
     T = s (I - s B)^-1 N0, so s is the root of h(s) = s weights' (I - s B)^-1 N0 - demand: a FIXED number of
     Newton steps from s = demand / weights' N0 (the total load changes with the tractions only through the tilted
-    contact normals, so h is nearly linear and the start is close). Returns T, s, N."""
+    contact normals, so h is nearly linear and the start is close). Returns T, s, N.
+
+    ratio_max (None: no bound): the largest ratio whose load transfer the balance is trusted for. The ground
+    passes at most its friction coefficient, so a demand that needs a higher common ratio is a stall: the wheels
+    slide at mu and carry the loads of tractions at mu, not the loads the balance gives at the impossible ratio
+    (there the tractions' own moments move the load off the wheels that climb). Past ratio_max the loads are
+    held at N(ratio_max) and the demand is shared in proportion to them (the ratio s grows, the loads do not);
+    continuous at s = ratio_max."""
     n = N0.numel()
     eye = ca.DM.eye(n)
     s = demand / ca.dot(weights, N0)
+    bound = None if ratio_max is None else ca.sign(demand) * ratio_max
     for _ in range(iterations):
+        if bound is not None:                                # the root sought lies within the bound
+            s = ca.if_else(ca.fabs(s) > ratio_max, bound, s)
         loads = ca.solve(eye - s * B, N0)                    # N(s)
         slope = ca.solve(eye - s * B, B @ loads)             # dN/ds
         h = s * ca.dot(weights, loads) - demand
         dh = ca.dot(weights, loads) + s * ca.dot(weights, slope)
         s = s - h / dh
     loads = ca.solve(eye - s * B, N0)
+    if bound is None:
+        return s * loads, s, loads
+    held = ca.solve(eye - bound * B, N0)                     # N(ratio_max)
+    stalled = ca.fabs(demand) > ratio_max * ca.fabs(ca.dot(weights, held))
+    s = ca.if_else(stalled, demand / ca.dot(weights, held), s)
+    loads = ca.if_else(stalled, held, loads)
     return s * loads, s, loads

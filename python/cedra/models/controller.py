@@ -92,6 +92,9 @@ def params() -> list[Quantity]:
                  "trims (0: Eq. 13 open loop)", 0.0),
         Quantity("ctrl.spin_margin", 10.0, "rad/s", "traction mode: a torque that has turned its wheel past the "
                  "wheel's rolling rate by more than this is dropped (it fades out linearly over this margin)", 1e-3),
+        Quantity("ctrl.ratio_max", 0.6, "1", "traction mode: the largest common friction ratio whose load transfer the "
+                 "balance is trusted for; a demand that needs more (a stall) is shared in proportion to the loads at "
+                 "this ratio", 0.05, 2.0),
         # a wheel in the air has only its own spin inertia J = m_w R_w^2 / 2 (1.06e-3 kg.m^2): Kp T / J = 0.95
         # at T = 0.01 s, so a lifted wheel is back at its rolling rate within about one sample (stable below 2)
         Quantity("ctrl.roll_kp", 0.1, "N.m.s/rad", "traction mode: gain of the loop that holds every wheel at its "
@@ -205,7 +208,7 @@ def _traction_torques(loads, p, demand, multiplicity, group_of):
     torque stays within +-ctrl.tau_max. Every rover's controller."""
     n0, B = loads
     weights = p["R_w"] * ca.DM(multiplicity)
-    _, ratio, normal = equal_ratio_tractions(n0, B, weights, demand, TRACTION_NEWTON_STEPS)
+    _, ratio, normal = equal_ratio_tractions(n0, B, weights, demand, TRACTION_NEWTON_STEPS, p["ctrl.ratio_max"])
     lim = p["ctrl.tau_max"]
     return [ca.fmin(ca.fmax(p["R_w"] * ratio * ca.fmax(normal[group_of[k - 1]], 0), -lim), lim) for k in WHEELS]
 
@@ -260,8 +263,20 @@ def _guarded(torques, i, p, rolling):
     for k, t in enumerate(torques):
         omega = i[f"wheel[{k + 1}].omega"]
         hold = p["ctrl.roll_kp"] * (rolling[k] - omega)
-        out.append(ca.fmin(ca.fmax(_spin_guard(t, omega, rolling[k], p["ctrl.spin_margin"]) + hold, -lim), lim))
+        out.append(ca.fmin(ca.fmax(_spin_guard(t, omega, rolling[k], _guard_margin(t, p)) + hold, -lim), lim))
     return out
+
+
+def _guard_margin(tau, p):
+    """The spin guard's fade width for the torque tau: ctrl.spin_margin, widened so that the sampled loop stays
+    stable. The fade's slope |tau| / margin is a gain on the wheel's spin error, and a sliding wheel has only its
+    own spin inertia J = m_w R_w^2 / 2 behind it: one period T moves its rate by T / J times the torque change, so
+    the loop's gain per sample is T |tau| / (J margin). With the 10 rad/s default and 4 N.m that is 3.8, and above
+    2 the loop does not settle: a rover stalled at a step (CEDRA, 0.5 R_w, mu 0.4) had wheel 1 swapping between
+    -0.1 and 8.0 rad/s and 3.1 and -0.2 N.m on alternate samples, for good. The margin is at least 2 T |tau| / J
+    (75 rad/s at 4 N.m), so the guard's gain is at most 1/2, and with the rolling-rate hold's (ctrl.roll_kp T / J,
+    0.95 by default) the sum stays below 2."""
+    return ca.fmax(p["ctrl.spin_margin"], 2 * ca.fabs(tau) * p["ctrl.period"] / (p["m_w"] * p["R_w"] ** 2 / 2))
 
 
 def _estimate(loads, p, tau, group_of):
@@ -369,7 +384,7 @@ def controller_spec(dims: str = "3d", name: str | None = None, rover: str = "ced
 
 ROVER_MODES = ("equal_torques", "inverse_kinematics", "traction_control")      # modes 0, 1, 2
 _ROVER_CTRL = ("ctrl.period", "ctrl.tau_max", "ctrl.ramp_time", "ctrl.speed_kp", "ctrl.speed_ki", "ctrl.rate_kp",
-               "ctrl.rate_ki", "ctrl.trim_ki", "ctrl.spin_margin", "ctrl.roll_kp")
+               "ctrl.rate_ki", "ctrl.trim_ki", "ctrl.spin_margin", "ctrl.ratio_max", "ctrl.roll_kp")
 
 
 def _rover_kind(rover: str):
