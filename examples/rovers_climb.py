@@ -11,7 +11,7 @@ rb_drive2d) at the commanded speed for 15 s. The plants have their drives (the m
 the commands, within +-4 N.m) and chassis contact: the sweeps' variant <scene>_drives_chassis, built into
 build/variants/ on first use. Prints and returns, per rover and mode, whether every wheel center got past the
 obstacle, when, whether the rover tipped over (the plant stops there: an outcome, not a failure), the peak wheel
-load, the mean slip speed and the motors' work per metre. Sweep it over the obstacle's height and mu:
+load, the mean slip speed, the motors' work per metre and the largest forward speed. Sweep it over the obstacle's height and mu:
 examples/sweeps/rovers/climb_controllers_{bump,step,stairs}.toml (`python -m cedra report rovers` runs them).
 """
 from __future__ import annotations
@@ -40,6 +40,7 @@ QUANTITIES = {"climbed": "1 if every wheel center got past the obstacle's end, e
               "t_over": "s, when the last wheel center got past it (NaN: never)",
               "peak_Fn": "N, largest wheel load", "mean_slip": "m/s, mean |wheel slip|",
               "work_per_m": "J/m, the motors' work per metre travelled", "x_end": "m, body.x at the end",
+              "peak_speed": "m/s, largest body.vx (the commanded speed is speed_cmd)",
               "tipped": "1 if the rover tipped over (the plant stops there), else 0"}
 SUMMARY = {f"{rover}.{mode}.{q}": f"{what} ({rover}, {mode})" for rover in ROVERS for mode in MODES
            for q, what in QUANTITIES.items()}

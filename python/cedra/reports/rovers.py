@@ -54,7 +54,7 @@ def drive(scene, controller, mode, terrain_h, build_dir, stop_time=STOP_TIME, ki
     loop = DriveLoop(plant, fmu(controller, build_dir), plant_values=values,
                      controller_values={"ctrl.mode": mode})
     wheels = range(1, 7)        # in 2D each wheel's twin on the other side has its own outputs, the same values
-    record = (["body.x", "energy.work"] + [f"wheel[{i}].{q}" for i in wheels for q in ("Fn", "Fx", "slip", "cx")])
+    record = (["body.x", "body.vx", "energy.work"] + [f"wheel[{i}].{q}" for i in wheels for q in ("Fn", "Fx", "slip", "cx")])
     cpu = time.process_time()
     try:
         r = loop.run(stop_time, STEP, lambda t: {"cmd.v": speed}, record=record)
@@ -87,7 +87,7 @@ def drive(scene, controller, mode, terrain_h, build_dir, stop_time=STOP_TIME, ki
                 mean_slip=float(np.abs(slip).mean()),
                 peak_ratio=float((np.abs(fx)[loaded] / fn[loaded]).max()) if loaded.any() else float("nan"),
                 work_per_m=float(r.column("energy.work")[-1] / travelled) if travelled > 0 else float("nan"),
-                x_end=float(x[-1]), rest=[float(v) for v in fn[:, 0]])
+                x_end=float(x[-1]), peak_speed=float(r.column("body.vx").max()), rest=[float(v) for v in fn[:, 0]])
 
 
 def measures(build_dir="build", stop_time=STOP_TIME, log=print) -> list[dict]:
