@@ -264,7 +264,7 @@ def test_traction_control_asks_less_friction_than_inverse_kinematics_on_the_bump
 def test_a_stalled_climb_does_not_spin_a_wheel_up():
     """3 R_w at mu 0.4 (plain torques: the bump2d plant has no drives) stalls the rover on the bump; the balance
     still gives a lifted wheel a load, and without the spin guard its torque spun it to 29,000 rad/s. With it no
-    wheel turns faster than 60 rad/s over 15 s (measured: 49 rad/s; the inverse kinematics' rate loops: 43)."""
+    wheel turns faster than 60 rad/s over 15 s (measured: 22.5 rad/s; the inverse kinematics' rate loops: 43)."""
     rec = [f"wheel[{i}].omega" for i in (1, 2, 5, 6)] + ["body.x"]
     loop = DriveLoop(scenario_fmu("bump2d", BUILD), scenario_fmu("drive2d", BUILD),
                      plant_values={"terrain_h": 0.195, "mu": 0.4}, controller_values={"ctrl.mode": 2})
@@ -274,6 +274,7 @@ def test_a_stalled_climb_does_not_spin_a_wheel_up():
         loop.close()
     assert r.ok, r.messages[-3:]
     spin = max(float(np.max(np.abs(r.column(n)))) for n in rec[:-1])
+    print(f"largest wheel rate {spin:.1f} rad/s, body.x {r.column('body.x')[-1]:.3f} m")
     assert spin < 60.0, spin
     assert r.column("body.x")[-1] < 1.0                 # stalled on the bump (at x = 1 m), as the other modes are
 
@@ -330,9 +331,9 @@ def test_the_rolling_rates_are_the_rates_of_the_wheels_that_roll(paper_runs):
 def test_a_lifted_wheel_lands_at_its_rolling_rate(paper_runs):
     """Over the bump wheels leave the ground and land again. Traction control holds a lifted wheel at its rolling
     rate, so at the last sample before a touchdown its spin rate is within 1 rad/s of it (median) and 6 rad/s
-    (worst; measured 0.52 and 4.9 rad/s over 11 touchdowns), where the inverse kinematics' rate loops (Eq. 13 for
+    (worst; measured 0.52 and 4.7 rad/s over 11 touchdowns), where the inverse kinematics' rate loops (Eq. 13 for
     the command) miss by more (6.6 and 27 rad/s over 19); and it slides (|Fx| / Fn above 0.79, mu = 0.8) at no
-    more than one sample x wheel (measured: none) against hundreds (212)."""
+    more than two samples x wheels (measured: one, wheel 5 landing at t = 4.09 s) against hundreds (212)."""
     misses, sliding = {}, {}
     for mode, r in paper_runs.items():
         rolling = _rolling(r)
@@ -347,4 +348,4 @@ def test_a_lifted_wheel_lands_at_its_rolling_rate(paper_runs):
            for m, v in misses.items()}, "sliding samples", sliding)
     assert np.median(misses[2]) < 1.0 and np.max(misses[2]) < 6.0
     assert np.median(misses[1]) > np.median(misses[2])
-    assert sliding[2] <= 1 < sliding[1]
+    assert sliding[2] <= 2 < sliding[1]
