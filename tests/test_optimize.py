@@ -144,3 +144,18 @@ def test_short_solve_converges_and_replays(tmp_path):
     assert s["final_x_optimizer"] >= s["goal_x"] - 1e-5
     assert s["optimum"]["arrived"]
     assert s["success"], s["status"]
+
+
+def test_the_report_does_not_call_a_node_path_closed_that_is_not():
+    """A solve that ends where its constraints read as met but whose node states are off the replayed path (an
+    aborted solve) is reported as not closed: the text goes by the node states against the FMU replay too."""
+    problem = optimize.load(REPO / "examples" / "optimize" / "bump2d_short_energy.toml")
+    run = dict(arrived=False, time=5.0, energy=1.0, peak_friction=0.8, work=1.0, peak_torque=1.0)
+    summary = dict(problem="p", scene="bump2d", objective="energy", goal_x=1.4, torque_max=6.0, intervals=4,
+                   horizon=0.8, guess="inverse_kinematics", status="Invalid_Number_Detected", iterations=21,
+                   solve_time=1.0, wall=2.0, nlp_objective=0.0, violation=0.0, smoothing=1e-6, integrator_tol=1e-8,
+                   replay_ok=True, replay_deviation=2e-6, node_deviation=0.388, stages=[], optimum=run,
+                   controllers={"equal_torques": run})
+    text = optimize.report_text(problem, summary)
+    assert "NOT closed" in text
+    assert "NOT closed" not in optimize.report_text(problem, summary | {"node_deviation": 1e-6})
