@@ -23,8 +23,8 @@ Every `ctrl.period` (default 0.01 s) it reads the commanded forward speed `cmd.v
                    +-ctrl.ratio_max (a demand that needs more is a stall: shared at the loads of that ratio); a
                    torque that has turned its wheel past the wheel's rolling rate (rover.statics.rolling_rates:
                    the measured body motion, joint rates and contact angles) by ctrl.spin_margin (wider where
-                   the sampled loop needs it: _guard_margin) is dropped (_spin_guard), and a loop (ctrl.roll_kp) holds every wheel at its rolling rate, so a lifted
-                   wheel lands turning as the ground asks.
+                   the sampled loop needs it: _guard_margin) is dropped (_spin_guard), and a loop (ctrl.roll_kp)
+                   holds every wheel at its rolling rate, so a lifted wheel lands turning as the ground asks.
 In every mode (3D) the steered wheels get the geometric steering angles (Eqs. 14-22) for (cmd.v, cmd.yaw_rate),
 and the outputs ctrl.Fn_est[i] give the balance's normal forces for the commanded torques (no force sensor: the
 pose, the contact angles and the torques only). Every mode is evaluated at every sample and the mode selects

@@ -54,7 +54,8 @@ def drive(scene, controller, mode, terrain_h, build_dir, stop_time=STOP_TIME, ki
     loop = DriveLoop(plant, fmu(controller, build_dir), plant_values=values,
                      controller_values={"ctrl.mode": mode})
     wheels = range(1, 7)        # in 2D each wheel's twin on the other side has its own outputs, the same values
-    record = (["body.x", "body.vx", "energy.work"] + [f"wheel[{i}].{q}" for i in wheels for q in ("Fn", "Fx", "slip", "cx")])
+    record = (["body.x", "body.vx", "energy.work"]
+              + [f"wheel[{i}].{q}" for i in wheels for q in ("Fn", "Fx", "slip", "cx")])
     cpu = time.process_time()
     try:
         r = loop.run(stop_time, STEP, lambda t: {"cmd.v": speed}, record=record)

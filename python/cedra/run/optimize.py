@@ -775,7 +775,8 @@ def report_text(problem: Problem, s: dict) -> str:
              f"({'holds' if s['replay_deviation'] <= 1e-4 else 'DOES NOT hold'} the 1e-4 m agreement)",
              f"- the NLP's node states against the replay at the node times: within **{s['node_deviation']:.2e} m** "
              + ("(the shooting defects are closed: the nodes are on the integrated path)"
-                if s["violation"] <= 1e-5 and s["node_deviation"] <= 1e-4 else "(the shooting defects are NOT closed: the nodes are not on the torques' integrated path, and "
+                if s["violation"] <= 1e-5 and s["node_deviation"] <= 1e-4 else
+                "(the shooting defects are NOT closed: the nodes are not on the torques' integrated path, and "
                 "the solve is no certified optimum)"), "",
              *_stage_lines(s["stages"]),
              "## Against the controllers (same FMU, same measures)", "",
