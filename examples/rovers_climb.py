@@ -11,8 +11,9 @@ rb_drive2d) at the commanded speed for 15 s. The plants have their drives (the m
 the commands, within +-4 N.m) and chassis contact: the sweeps' variant <scene>_drives_chassis, built into
 build/variants/ on first use. Prints and returns, per rover and mode, whether every wheel center got past the
 obstacle, when, whether the rover tipped over (the plant stops there: an outcome, not a failure), the peak wheel
-load, the mean slip speed, the motors' work per metre and the largest forward speed. Sweep it over the obstacle's height and mu:
-examples/sweeps/rovers/climb_controllers_{bump,step,stairs}.toml (`python -m cedra report rovers` runs them).
+load, the mean slip speed, the motors' work per metre and the largest forward speed. Sweep it over the
+obstacle's height and mu: examples/sweeps/rovers/climb_controllers_{bump,step,stairs}.toml (`python -m cedra
+report rovers` runs them).
 """
 from __future__ import annotations
 

@@ -170,9 +170,8 @@ def test_a_demand_past_ratio_max_is_shared_at_the_loads_of_ratio_max():
         else:
             assert np.allclose(N, held[np.sign(demand)], rtol=1e-12)
             assert np.allclose(T, s * N) and abs(s) > cap
-    passes = passes[1]
     near = [np.array(equal_ratio_tractions(N0, B, weights, d, TRACTION_NEWTON_STEPS, cap)[0]).ravel()
-            for d in (passes * (1 - 1e-7), passes * (1 + 1e-7))]
+            for d in (passes[1] * (1 - 1e-7), passes[1] * (1 + 1e-7))]
     assert np.allclose(near[0], near[1], rtol=1e-5)                        # continuous at the cap
 
 
