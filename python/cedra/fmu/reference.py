@@ -181,17 +181,20 @@ def index_page(specs: list[ModelSpec]) -> str:
 
 
 def write_site_reference(out_dir, specs: list[ModelSpec] | None = None) -> list[Path]:
-    """docs/reference/: index.md and one page per FMU. Files are rewritten only when their text changes."""
+    """docs/reference/: index.md and one page per FMU, and under html/ each FMU's documentation/index.html (what
+    tests/test_docs.py holds the built FMUs to; Sphinx reads only the .md). Files are rewritten only when their text
+    changes."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    (out / "html").mkdir(parents=True, exist_ok=True)
     specs = shipped_specs() if specs is None else specs
-    pages = {"index.md": index_page(specs)} | {f"{s.name}.md": markdown_page(s) for s in specs}
+    pages = {"index.md": index_page(specs)} | {f"{s.name}.md": markdown_page(s) for s in specs} | \
+        {f"html/{s.name}.html": html_page(s) for s in specs}
     written = []
     for name, text in pages.items():
         p = out / name
         if not p.exists() or p.read_text() != text:
             p.write_text(text)
         written.append(p)
-    for stale in set(out.glob("*.md")) - set(written):
+    for stale in (set(out.glob("*.md")) | set(out.glob("html/*.html"))) - set(written):
         stale.unlink()
     return written
