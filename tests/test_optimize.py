@@ -47,6 +47,11 @@ GOOD = 'scene = "bump2d"\nobjective = "energy"\nmargin = 0.4\ninterval = 0.1\n'
     (GOOD + "[solver]\nsmoothing = [1e-4, 0.0]\nproximal = [0.1, 0.01, 0.0]\n", "solver.proximal",
      "one weight per smoothing stage"),
     (GOOD + "[solver]\nproximal = [0.1, -1.0]\n", "solver.proximal", "must be >= 0"),
+    (GOOD + "[solver]\nhessian = [\"objective\", \"bfgs\"]\n", "solver.hessian", "must be one of"),
+    (GOOD + "[solver]\nsmoothing = [1e-4, 0.0]\nhessian = [\"objective\", \"objective\", \"differenced\"]\n",
+     "solver.hessian", "one Hessian per smoothing stage"),
+    (GOOD.replace('"energy"', '"time"') + "[solver]\nhessian = \"differenced\"\n", "solver.hessian",
+     "needs a fixed horizon"),
 ])
 def test_bad_problem_names_file_and_key(tmp_path, text, key, reason):
     path = tmp_path / "bad.toml"
@@ -83,6 +88,31 @@ def test_shipped_problems_load():
     for f in files:
         p = optimize.load(f)
         assert p.objective in optimize.OBJECTIVES
+
+
+def test_the_differenced_hessian_is_the_lagrangians_own():
+    """ShootingHessian against CasADi's own second derivatives through the integrator, on a torque-driven pendulum
+    (a small ODE CasADi can differentiate twice): 3 intervals, a random point and random multipliers."""
+    import casadi as ca
+    x, p = ca.SX.sym("x", 2), ca.SX.sym("p", 1)
+    ode = ca.vertcat(x[1], -9.81 * ca.sin(x[0]) - 0.3 * x[1] * ca.fabs(x[1]) + p[0] * (1 + 0.5 * ca.cos(x[0])))
+    F = ca.integrator("F", "cvodes", {"x": x, "p": p, "ode": ode}, 0, 0.3, {"abstol": 1e-12, "reltol": 1e-12})
+    n, nx = 3, 2
+    X, U = ca.MX.sym("X", nx, n + 1), ca.MX.sym("U", 1, n)
+    g = ca.vec(F(x0=X[:, :n], p=U)["xf"] - X[:, 1:])
+    J = ca.sumsqr(U) + 0.1 * ca.sumsqr(X[:, -1])
+    w = ca.vertcat(ca.vec(X), ca.vec(U))
+    rng = np.random.default_rng(1)
+    wv, lam = rng.uniform(-1, 1, w.numel()), rng.uniform(-2, 2, g.numel())
+    lam_f = 0.7
+    exact = np.array(ca.Function("h", [w], [ca.hessian(lam_f * J + ca.dot(ca.DM(lam), g), w)[0]])(wv))
+    hess = optimize.ShootingHessian(w, J, g.numel(), n, optimize._interval_jacobian(F, nx, 1), proximal=0.0)
+    got = hess.matrix(wv, lam_f, lam)
+    assert np.max(np.abs(got - exact)) < 1e-4 * np.max(np.abs(exact)), np.max(np.abs(got - exact))
+    assert np.max(np.abs(exact - np.diag(np.diag(exact)))) > 0.1      # the intervals' own curvature is in it
+    # what IPOPT gets: the upper triangle of the same matrix, on the declared block pattern
+    triu = np.array(ca.densify(hess(wv, ca.DM(0, 1), lam_f, lam)))
+    assert np.allclose(triu, np.triu(got), atol=0) and np.allclose(np.triu(got) + np.triu(got, 1).T, got)
 
 
 def test_smoothed_contact_law_tends_to_the_fmus():

@@ -18,12 +18,13 @@ cedra_fc where the scene has chassis contact), generated to C with its Jacobian 
 under build/host/), as the FMU is. The contact search (cedra_rim_search, the FMU's C search) makes discrete choices
 and returns converged angles: the model never differentiates it (cedra.mechanics.contact.rim_contacts), and
 neither does the optimizer (casadi.stop_diff on its results). Second derivatives of the equations are not formed:
-IPOPT's Hessian of the Lagrangian is the objective's own (exact for the energy, a sum of squares of the torques)
-without the shooting constraints' curvature, a generalized Gauss-Newton method (`solver.hessian = "objective"`,
-the default; "limited-memory" is IPOPT's quasi-Newton approximation), and CVODES' sensitivity Newton iteration
-uses the first-order Jacobian. The wheels' spin angles enter no force, so the shooting state leaves them out (14
-of the model's 18 states), and with a fixed horizon the interval's length is a constant, not a parameter the
-sensitivities are taken for.
+IPOPT's Hessian of the Lagrangian is by default the objective's own (exact for the energy, a sum of squares of the
+torques) without the shooting constraints' curvature, a generalized Gauss-Newton method (`solver.hessian =
+"objective"`); "differenced" adds that curvature, each interval's block from forward differences of its
+sensitivities (ShootingHessian: Newton's method, at ten times an iteration's cost or more); "limited-memory" is
+IPOPT's quasi-Newton approximation. CVODES' sensitivity Newton iteration uses the first-order Jacobian. The
+wheels' spin angles enter no force, so the shooting state leaves them out (14 of the model's 18 states), and with
+a fixed horizon the interval's length is a constant, not a parameter the sensitivities are taken for.
 
 Initial guess (`guess`): a drive controller's run from the same start, its states at the grid nodes and its mean
 torques per interval. The equal-torque and inverse-kinematics controllers sample every 0.01 s, so their torques
@@ -76,7 +77,9 @@ Problem files (TOML), checked before anything runs, each error naming the file, 
     integrator_tol = 1e-8           # CVODES abstol = reltol of the shooting integrator
     threads = 1                     # the shooting intervals integrated on this many threads (CasADi map)
     hessian = "objective"           # objective: the objective's own Hessian (generalized Gauss-Newton) |
-                                    # limited-memory: IPOPT's quasi-Newton approximation
+                                    # differenced: plus the shooting constraints' curvature, differenced from
+                                    # the sensitivities (fixed horizon only) | limited-memory: IPOPT's
+                                    # quasi-Newton approximation; a list: one per smoothing stage
     proximal = 0.0                  # hessian = "objective": this times the identity on the node states added
                                     # (shorter steps where the contact makes the linearization poor; a list:
                                     # one weight per smoothing stage)
@@ -111,7 +114,7 @@ TOP_KEYS = {"name", "scene", "objective", "margin", "interval", "horizon", "torq
             "regularization", "inputs", "solver"}
 SOLVER_KEYS = {"max_iter", "tol", "integrator_tol", "threads", "hessian", "proximal", "smoothing"}
 SMOOTHING_MAX = 0.01         # m: the largest smoothing width of the contact law a problem may give
-HESSIANS = ("objective", "limited-memory")
+HESSIANS = ("objective", "limited-memory", "differenced")
 WARM_DUALS = True            # a continuation stage starts from the previous one's multipliers too
 
 
@@ -137,7 +140,7 @@ class Problem:
     tol: float = 1e-6
     integrator_tol: float = 1e-8
     threads: int = 1
-    hessian: str = "objective"
+    hessian: tuple = ("objective",)
     proximal: tuple = (0.0,)
     smoothing: tuple = (0.0,)
     path: str = ""
@@ -209,7 +212,8 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
         elif key == "integrator_tol":
             problem.integrator_tol = _number(path, k, value, 1e-14, 1e-4)
         elif key == "hessian":
-            problem.hessian = _choice(path, k, value, HESSIANS)
+            values = value if isinstance(value, list) and value else [value]
+            problem.hessian = tuple(_choice(path, k, v, HESSIANS) for v in values)
         elif key == "proximal":
             values = value if isinstance(value, list) and value else [value]
             problem.proximal = tuple(_number(path, k, v, 0.0, 1e3) for v in values)
@@ -224,6 +228,11 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
     if len(problem.proximal) not in (1, len(problem.smoothing)):
         _fail(path, "solver.proximal", f"a list must give one weight per smoothing stage "
               f"({len(problem.smoothing)}), got {len(problem.proximal)}")
+    if len(problem.hessian) not in (1, len(problem.smoothing)):
+        _fail(path, "solver.hessian", f"a list must give one Hessian per smoothing stage "
+              f"({len(problem.smoothing)}), got {len(problem.hessian)}")
+    if "differenced" in problem.hessian and objective == "time":
+        _fail(path, "solver.hessian", "'differenced' needs a fixed horizon (objective energy or peak_friction)")
     return problem
 
 
@@ -496,7 +505,7 @@ def initial_guess(names, rows, n: int, dt: float):
 
 
 def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float, goal_x: float,
-          log: bool = False, warm: dict | None = None, proximal: float = 0.0) -> dict:
+          log: bool = False, warm: dict | None = None, proximal: float = 0.0, hessian: str = "objective") -> dict:
     """Multiple shooting: decisions X_0..X_N (shooting states, X_0 fixed at x0), U_0..U_{N-1} (four torques
     each), the interval length dt (free for the time objective), the epigraph s (peak_friction), on the equations
     at the contact law's smoothing width dyn.width. The intervals are integrated on `problem.threads` threads.
@@ -548,10 +557,15 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
             warm_opts = {"warm_start_init_point": "yes", "mu_init": 1e-4, "warm_start_bound_push": 1e-6,
                          "warm_start_mult_bound_push": 1e-6}
     nlp = {"x": w, "f": J, "g": ca.vertcat(*g)}
-    hessian = {"hess_lag": _objective_hessian(w, J, nlp["g"].numel(), nx * (n + 1), proximal)} \
-        if problem.hessian == "objective" else {}
+    if hessian == "objective":
+        hess = {"hess_lag": _objective_hessian(w, J, nlp["g"].numel(), nx * (n + 1), proximal)}
+    elif hessian == "differenced":
+        hess = {"hess_lag": ShootingHessian(w, J, nlp["g"].numel(), n, _interval_jacobian(
+            dyn.integrator(problem.integrator_tol, dt=dt_guess), nx, 4), problem.threads, proximal)}
+    else:
+        hess = {}
     opts = {"ipopt": {"max_iter": problem.max_iter, "tol": problem.tol,
-                      "hessian_approximation": "exact" if hessian else "limited-memory",
+                      "hessian_approximation": "exact" if hess else "limited-memory",
                       "print_level": 5 if log else 0, "sb": "yes",
                       # the sensitivities carry no jump term where a contact law switches (see the module
                       # docstring), which keeps the dual infeasibility at 1e-3..1e-2 near the optimum: stop there
@@ -560,7 +574,7 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
                       "acceptable_constr_viol_tol": 1e-5,
                       # the filter accepts no trial point whose constraint violation (1-norm) exceeds the start's
                       # (at least 1): the Gauss-Newton steps otherwise trade a large violation for objective
-                      "theta_max_fact": 1.0, **warm_opts}, "print_time": False, **hessian}
+                      "theta_max_fact": 1.0, **warm_opts}, "print_time": False, **hess}
     solver = ca.nlpsol("climb", "ipopt", nlp, opts)
     t0 = time.perf_counter()
     lbg, ubg = np.concatenate(lbg), np.concatenate(ubg)
@@ -604,6 +618,86 @@ def _objective_hessian(w, J, n_g: int, n_states: int, proximal: float) -> ca.Fun
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g)
     return ca.Function("nlp_hess_l", [x, ca.MX(0, 1), lam_f, lam_g], [ca.triu(lam_f * hess)],
                        ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
+
+
+def _interval_jacobian(F: ca.Function, nx: int, nu: int) -> ca.Function:
+    """d xf / d (x0, p) of one shooting interval F(x0, p) -> xf, as one nx x (nx + nu) matrix."""
+    x, p = ca.MX.sym("x", nx), ca.MX.sym("p", nu)
+    return ca.Function("interval_jacobian", [x, p], [ca.jacobian(F(x0=x, p=p)["xf"], ca.vertcat(x, p))])
+
+
+class ShootingHessian(ca.Callback):
+    """The Hessian of the Lagrangian with the shooting constraints' curvature (solver.hessian = "differenced"):
+    lam_f times the objective's own plus, for every interval k, the second derivative of lam_k . F(X_k, U_k) in the
+    interval's own decisions z_k = (X_k, U_k), from forward differences of its Jacobian (CVODES' first-order
+    sensitivities, `jacobian`: z -> d F / d z) in each component of z_k, symmetrized. The equations' own second
+    derivatives are not compiled, and differencing the sensitivities costs len(z_k) more Jacobians an interval (on
+    `threads` threads): on the whole bump (53 intervals of 0.1 s, 2 threads) an iteration takes about 50 s
+    instead of the Gauss-Newton iteration's 4 s. The shooting constraints are the first nx n entries of g
+    (X_{k+1} = F(X_k, U_k)); any further constraints (peak_friction's node forces) keep their curvature out, as in
+    the Gauss-Newton Hessian. The decisions are w = [vec(X) (nx x (n + 1)); vec(U) (nu x n); anything else]."""
+
+    STEP = 1e-5           # the forward difference's step, relative to max(1, |z|): the sensitivities are accurate to
+    # about 1e-5 relative (docs/optimize.md), so the difference carries about that over the step, 1e-5 x |H|
+
+    def __init__(self, w, J, n_g: int, n: int, jacobian: ca.Function, threads: int = 1, proximal: float = 0.0):
+        ca.Callback.__init__(self)
+        self.nx, self.nu = jacobian.size1_out(0), jacobian.size2_out(0) - jacobian.size1_out(0)
+        self.nw, self.n_g, self.n, self.proximal = w.numel(), n_g, n, proximal
+        x = ca.MX.sym("x", self.nw)
+        self.objective_hessian = ca.Function("objective_hessian", [x],
+                                             [ca.hessian(ca.Function("objective", [w], [J])(x), x)[0]])
+        nz, nx = self.nx + self.nu, self.nx
+        self.jacobians = jacobian.map(n * (nz + 1), "thread", threads) if threads > 1 else \
+            jacobian.map(n * (nz + 1), "serial")
+        self.blocks = [np.r_[np.arange(k * nx, (k + 1) * nx), nx * (n + 1) + self.nu * k + np.arange(self.nu)]
+                       for k in range(n)]
+        # the pattern: every interval's block, the diagonal (proximal) and the objective's own Hessian
+        own = self.objective_hessian.sparsity_out(0)
+        rows = np.concatenate([np.repeat(idx, nz) for idx in self.blocks] + [np.arange(self.nw), own.row()])
+        cols = np.concatenate([np.tile(idx, nz) for idx in self.blocks] + [np.arange(self.nw), own.get_col()])
+        upper = rows <= cols
+        self.sparsity = ca.Sparsity.triplet(self.nw, self.nw, rows[upper].tolist(), cols[upper].tolist())
+        self.construct("nlp_hess_l", {})
+
+    def get_n_in(self):
+        return 4
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ("x", "p", "lam_f", "lam_g")[i]
+
+    def get_name_out(self, i):
+        return "triu_hess_gamma_x_x"
+
+    def get_sparsity_in(self, i):
+        return (ca.Sparsity.dense(self.nw), ca.Sparsity(0, 1), ca.Sparsity.dense(1), ca.Sparsity.dense(self.n_g))[i]
+
+    def get_sparsity_out(self, i):
+        return self.sparsity
+
+    def eval(self, args):
+        w, lam_f, lam_g = (np.array(args[k], dtype=float).ravel() for k in (0, 2, 3))
+        return [ca.project(ca.triu(ca.sparsify(ca.DM(self.matrix(w, lam_f[0], lam_g)))), self.sparsity)]
+
+    def matrix(self, w: np.ndarray, lam_f: float, lam_g: np.ndarray) -> np.ndarray:
+        """The full (symmetric) Hessian of lam_f f + lam_g . g at w, as a dense array."""
+        nx, n, nz = self.nx, self.n, self.nx + self.nu
+        H = lam_f * np.array(self.objective_hessian(w))
+        H[np.arange(nx * (n + 1)), np.arange(nx * (n + 1))] += self.proximal
+        Z = np.stack([w[idx] for idx in self.blocks], axis=1)                 # nz x n: every interval's z_k
+        steps = self.STEP * np.maximum(1.0, np.abs(Z))
+        variants = [Z] + [Z + np.eye(nz)[:, [c]] * steps[c] for c in range(nz)]
+        points = np.concatenate(variants, axis=1)                             # nz x n (nz + 1), variant-major
+        jac = np.array(self.jacobians(points[:nx], points[nx:])).reshape(nx, nz + 1, n, nz)
+        for k, idx in enumerate(self.blocks):
+            lam = lam_g[k * nx:(k + 1) * nx]
+            base = lam @ jac[:, 0, k, :]
+            block = np.stack([(lam @ jac[:, 1 + c, k, :] - base) / steps[c, k] for c in range(nz)], axis=1)
+            H[np.ix_(idx, idx)] += 0.5 * (block + block.T)
+        return H
 
 
 def state_bounds(dyn: Dynamics) -> tuple[np.ndarray, np.ndarray]:
@@ -671,9 +765,11 @@ def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
         if len(problem.smoothing) > 1:
             say(f"stage {len(stages) + 1}/{len(problem.smoothing)}: contact smoothing width {width:g} m")
         proximal = problem.proximal[min(len(stages), len(problem.proximal) - 1)]
-        result = solve(problem, dyn, x0, X_guess, U_guess, dt, goal_x, log=not quiet, warm=result, proximal=proximal)
+        hessian = problem.hessian[min(len(stages), len(problem.hessian) - 1)]
+        result = solve(problem, dyn, x0, X_guess, U_guess, dt, goal_x, log=not quiet, warm=result, proximal=proximal,
+                       hessian=hessian)
         stages.append({k: result[k] for k in ("width", "status", "iterations", "wall", "objective", "violation",
-                                              "success")} | {"proximal": proximal})
+                                              "success")} | {"proximal": proximal, "hessian": hessian})
         say(f"IPOPT: {result['status']} after {result['iterations']} iterations, {result['wall']:.1f} s, "
             f"constraint violation {result['violation']:.1e}, objective {result['objective']:.6g}")
     replay_names, replay_rows, replay_ok = replay(problem, dyn, x0, result["U"], result["dt"], build_dir)
