@@ -893,12 +893,12 @@ def _stage_lines(stages) -> list[str]:
     if len(stages) < 2:
         return []
     lines = ["Continuation (each stage started from the previous one's solution and multipliers):", "",
-             "| stage | smoothing width [m] | proximal | IPOPT | iterations | time [s] | constraint violation "
-             "| objective |", "|---|---|---|---|---|---|---|---|"]
+             "| stage | smoothing width [m] | Hessian | proximal | IPOPT | iterations | time [s] "
+             "| constraint violation | objective |", "|---|---|---|---|---|---|---|---|---|"]
     for k, st in enumerate(stages):
-        lines.append(f"| {k + 1} | {st['width']:g} | {st['proximal']:g} | {st['status']} | {st['iterations']} "
-                     f"| {st['wall']:.1f} "
-                     f"| {st['violation']:.1e} | {st['objective']:.6g} |")
+        lines.append(f"| {k + 1} | {st['width']:g} | {st['hessian']} | {st['proximal']:g} "
+                     f"| {st['status']} | {st['iterations']} | {st['wall']:.1f} | {st['violation']:.1e} "
+                     f"| {st['objective']:.6g} |")
     return lines + [""]
 
 
