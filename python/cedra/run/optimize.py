@@ -212,11 +212,9 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
         elif key == "integrator_tol":
             problem.integrator_tol = _number(path, k, value, 1e-14, 1e-4)
         elif key == "hessian":
-            values = value if isinstance(value, list) and value else [value]
-            problem.hessian = tuple(_choice(path, k, v, HESSIANS) for v in values)
+            problem.hessian = tuple(_choice(path, k, v, HESSIANS) for v in _stage_values(value))
         elif key == "proximal":
-            values = value if isinstance(value, list) and value else [value]
-            problem.proximal = tuple(_number(path, k, v, 0.0, 1e3) for v in values)
+            problem.proximal = tuple(_number(path, k, v, 0.0, 1e3) for v in _stage_values(value))
         elif key == "smoothing":
             problem.smoothing = _widths(path, k, value)
         elif key == "threads":
@@ -225,15 +223,23 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
             problem.threads = value
         else:
             _fail(path, k, f"unknown key (known: {', '.join(sorted(SOLVER_KEYS))})")
-    if len(problem.proximal) not in (1, len(problem.smoothing)):
-        _fail(path, "solver.proximal", f"a list must give one weight per smoothing stage "
-              f"({len(problem.smoothing)}), got {len(problem.proximal)}")
-    if len(problem.hessian) not in (1, len(problem.smoothing)):
-        _fail(path, "solver.hessian", f"a list must give one Hessian per smoothing stage "
-              f"({len(problem.smoothing)}), got {len(problem.hessian)}")
+    for key, values, what in (("proximal", problem.proximal, "weight"), ("hessian", problem.hessian, "Hessian")):
+        if len(values) not in (1, len(problem.smoothing)):
+            _fail(path, f"solver.{key}", f"a list must give one {what} per smoothing stage "
+                  f"({len(problem.smoothing)}), got {len(values)}")
     if "differenced" in problem.hessian and objective == "time":
         _fail(path, "solver.hessian", "'differenced' needs a fixed horizon (objective energy or peak_friction)")
     return problem
+
+
+def _stage_values(value) -> list:
+    """A per-stage setting's values: a non-empty list as given, anything else one value for every stage."""
+    return value if isinstance(value, list) and value else [value]
+
+
+def _at_stage(values: tuple, stage: int):
+    """A per-stage setting's value at `stage` (0-based): one value serves every stage."""
+    return values[min(stage, len(values) - 1)]
 
 
 def _widths(path, key, value) -> tuple:
@@ -613,11 +619,19 @@ def _objective_hessian(w, J, n_g: int, n_states: int, proximal: float) -> ca.Fun
     second derivatives are not available (the integrator's sensitivities are first order); left out, the steps
     are those of a generalized Gauss-Newton method, which the objective's curvature in the torques keeps short."""
     x = ca.MX.sym("x", w.numel())
-    hess = ca.hessian(ca.Function("objective", [w], [J])(x), x)[0]
-    hess = hess + ca.diag(ca.vertcat(ca.DM.ones(n_states) * proximal, ca.DM.zeros(w.numel() - n_states)))
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g)
-    return ca.Function("nlp_hess_l", [x, ca.MX(0, 1), lam_f, lam_g], [ca.triu(lam_f * hess)],
+    return ca.Function("nlp_hess_l", [x, ca.MX(0, 1), lam_f, lam_g],
+                       [ca.triu(lam_f * _objective_part(w, J, n_states, proximal)(x))],
                        ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
+
+
+def _objective_part(w, J, n_states: int, proximal: float) -> ca.Function:
+    """w -> the objective's own Hessian plus `proximal` times the identity on the first n_states decisions (the
+    node states): the Hessian of the Lagrangian without the constraints' curvature, per unit lam_f."""
+    x = ca.MX.sym("x", w.numel())
+    hess = ca.hessian(ca.Function("objective", [w], [J])(x), x)[0]
+    return ca.Function("objective_part", [x], [hess + ca.diag(ca.vertcat(ca.DM.ones(n_states) * proximal,
+                                                                          ca.DM.zeros(w.numel() - n_states)))])
 
 
 def _interval_jacobian(F: ca.Function, nx: int, nu: int) -> ca.Function:
@@ -628,9 +642,10 @@ def _interval_jacobian(F: ca.Function, nx: int, nu: int) -> ca.Function:
 
 class ShootingHessian(ca.Callback):
     """The Hessian of the Lagrangian with the shooting constraints' curvature (solver.hessian = "differenced"):
-    lam_f times the objective's own plus, for every interval k, the second derivative of lam_k . F(X_k, U_k) in the
-    interval's own decisions z_k = (X_k, U_k), from forward differences of its Jacobian (CVODES' first-order
-    sensitivities, `jacobian`: z -> d F / d z) in each component of z_k, symmetrized. The equations' own second
+    lam_f times the objective's own with the proximal term (_objective_part, as the Gauss-Newton Hessian) plus,
+    for every interval k, the second derivative of lam_k . F(X_k, U_k) in the interval's own decisions
+    z_k = (X_k, U_k), from forward differences of its Jacobian (CVODES' first-order sensitivities, `jacobian`:
+    z -> d F / d z) in each component of z_k, symmetrized. The equations' own second
     derivatives are not compiled, and differencing the sensitivities costs len(z_k) more Jacobians an interval (on
     `threads` threads): on the whole bump (53 intervals of 0.1 s, 2 threads) an iteration takes about 50 s
     instead of the Gauss-Newton iteration's 4 s. The shooting constraints are the first nx n entries of g
@@ -643,17 +658,15 @@ class ShootingHessian(ca.Callback):
     def __init__(self, w, J, n_g: int, n: int, jacobian: ca.Function, threads: int = 1, proximal: float = 0.0):
         ca.Callback.__init__(self)
         self.nx, self.nu = jacobian.size1_out(0), jacobian.size2_out(0) - jacobian.size1_out(0)
-        self.nw, self.n_g, self.n, self.proximal = w.numel(), n_g, n, proximal
-        x = ca.MX.sym("x", self.nw)
-        self.objective_hessian = ca.Function("objective_hessian", [x],
-                                             [ca.hessian(ca.Function("objective", [w], [J])(x), x)[0]])
+        self.nw, self.n_g, self.n = w.numel(), n_g, n
         nz, nx = self.nx + self.nu, self.nx
+        self.objective_part = _objective_part(w, J, nx * (n + 1), proximal)
         self.jacobians = jacobian.map(n * (nz + 1), "thread", threads) if threads > 1 else \
             jacobian.map(n * (nz + 1), "serial")
         self.blocks = [np.r_[np.arange(k * nx, (k + 1) * nx), nx * (n + 1) + self.nu * k + np.arange(self.nu)]
                        for k in range(n)]
         # the pattern: every interval's block, the diagonal (proximal) and the objective's own Hessian
-        own = self.objective_hessian.sparsity_out(0)
+        own = self.objective_part.sparsity_out(0)
         rows = np.concatenate([np.repeat(idx, nz) for idx in self.blocks] + [np.arange(self.nw), own.row()])
         cols = np.concatenate([np.tile(idx, nz) for idx in self.blocks] + [np.arange(self.nw), own.get_col()])
         upper = rows <= cols
@@ -685,8 +698,7 @@ class ShootingHessian(ca.Callback):
     def matrix(self, w: np.ndarray, lam_f: float, lam_g: np.ndarray) -> np.ndarray:
         """The full (symmetric) Hessian of lam_f f + lam_g . g at w, as a dense array."""
         nx, n, nz = self.nx, self.n, self.nx + self.nu
-        H = lam_f * np.array(self.objective_hessian(w))
-        H[np.arange(nx * (n + 1)), np.arange(nx * (n + 1))] += self.proximal
+        H = lam_f * np.array(self.objective_part(w))
         Z = np.stack([w[idx] for idx in self.blocks], axis=1)                 # nz x n: every interval's z_k
         steps = self.STEP * np.maximum(1.0, np.abs(Z))
         variants = [Z] + [Z + np.eye(nz)[:, [c]] * steps[c] for c in range(nz)]
@@ -764,8 +776,7 @@ def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
         dyn.width = width
         if len(problem.smoothing) > 1:
             say(f"stage {len(stages) + 1}/{len(problem.smoothing)}: contact smoothing width {width:g} m")
-        proximal = problem.proximal[min(len(stages), len(problem.proximal) - 1)]
-        hessian = problem.hessian[min(len(stages), len(problem.hessian) - 1)]
+        proximal, hessian = _at_stage(problem.proximal, len(stages)), _at_stage(problem.hessian, len(stages))
         result = solve(problem, dyn, x0, X_guess, U_guess, dt, goal_x, log=not quiet, warm=result, proximal=proximal,
                        hessian=hessian)
         stages.append({k: result[k] for k in ("width", "status", "iterations", "wall", "objective", "violation",
