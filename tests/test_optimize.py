@@ -146,6 +146,50 @@ def test_smoothed_contact_law_tends_to_the_fmus():
     assert np.max(np.diff(slope)) < 0.3 * k
 
 
+def test_smoothed_joint_stop_tends_to_the_fmus():
+    """The joint stops' smoothed law (mechanism.stop_torque with a width) is the FMU's law exactly at width 0 and
+    within e^-30 of it away from its switches (the stop's angle and the clip k e = -d rate), on both stops."""
+    import casadi as ca
+    from cedra.rover.mechanism import stop_torque
+    k, d, lo, hi = 500.0, 5.0, -0.6, 0.6
+    angle, rate, width = ca.SX.sym("angle"), ca.SX.sym("rate"), ca.SX.sym("width")
+    law = ca.Function("law", [angle, rate], [stop_torque(angle, rate, lo, hi, k, d)])
+    smooth = ca.Function("smooth", [angle, rate, width], [stop_torque(angle, rate, lo, hi, k, d, width)])
+    A, R = (a.ravel() for a in np.meshgrid(np.linspace(-0.7, 0.7, 701), np.linspace(-3, 3, 121)))
+    exact = np.array(law(A, R)).ravel()
+    assert np.array_equal(np.array(smooth(A, R, 0.0)).ravel(), exact)
+    for w in (1e-3, 1e-4, 1e-6):
+        switches = [np.abs(A - hi), np.abs(A - lo), np.abs(k * (A - hi) + d * R) / k, np.abs(k * (A - lo) + d * R) / k]
+        far = np.min(switches, axis=0) > 30 * w
+        value = np.array(smooth(A, R, w)).ravel()
+        assert np.all(np.isfinite(value))
+        assert np.max(np.abs(value - exact)[far]) < 1e-9 * k * w + 1e-12, w
+        assert np.all(value[A > hi + 30 * w] <= 0) and np.all(value[A < lo - 30 * w] >= 0)   # pushes back only
+
+
+def test_the_optimizers_equations_smooth_the_joint_stops():
+    """The optimizer's equations (optimize.Dynamics) take the contact's width to the joint stops too, as that width
+    over R_w in radians: with the bogie 1 mrad past its stop the bogie's acceleration differs from the FMU law's
+    (width 0) by the smoothing's torque; with the bogie well inside its range it does not change at all."""
+    import casadi as ca
+    from cedra.run.optimize import Dynamics, parse
+    dyn = Dynamics(parse({"scene": "bump2d", "objective": "energy", "margin": -0.5, "interval": 0.2}))
+    q_names = dyn.model.q_names
+    p = {q.name: dyn.par[k] for k, q in enumerate(dyn.model.params)}
+
+    def bogie_acceleration(theta1, width):
+        x = np.zeros(dyn.nx)
+        x[q_names.index("z")] = 0.5                         # in the air: no contact, only the stop acts
+        x[q_names.index("theta1")] = theta1
+        dyn.width = width
+        return float(ca.evalf(dyn.ode(ca.DM(x), [0, 0, 0, 0]))[dyn.nq + q_names.index("theta1")])
+
+    w = 2e-4
+    past = -p["bogie_stop"] - 1e-3
+    assert bogie_acceleration(past, 0.0) != bogie_acceleration(past, w)
+    assert bogie_acceleration(-0.2, 0.0) == bogie_acceleration(-0.2, w)
+
+
 def test_smoothed_model_forms_no_fmu():
     from cedra.models.plant import CedraModel
     from cedra.models.scene import load_shipped

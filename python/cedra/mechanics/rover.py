@@ -83,7 +83,8 @@ class RoverKind:
     parameters: list[Quantity]              # the rover's own parameters (FMU parameters, in this order)
     servo_parameters: list[Quantity]        # the steering servo's, in a scene with steering
     steer_inputs: list[Quantity]            # the steering commands, in a scene with steering
-    describe: Callable                      # (qf, rate, p, tau, steer_cmd or None) -> RoverDescription
+    describe: Callable                      # (qf, rate, p, tau, steer_cmd or None, stop_width=None)
+    #                                         -> RoverDescription
     stops: tuple[Stop, ...]                 # the joints' compliant stops (force-law switches)
     design: Callable                        # p -> {coordinate: value}: body height z over flat ground and the
     #                                         joint angles of the design pose (the rest 0)

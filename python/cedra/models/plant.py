@@ -143,7 +143,9 @@ class CedraModel:
         self.qf = ca.SX(ca.DM(self.P)) @ self.q
         self.tau = self.applied_torques([i_.get(f"tau[{k}]", 0) for k in range(1, 7)])
         steer = tuple(i_[s.name] for s in self.kind.steer_inputs) if opt.steering else None
-        self.rover = self.kind.describe(self.qf, self.rate, p, self.tau, steer)
+        # the smoothed law's joint stops: the contact's width measured along a wheel's rim, in radians
+        stop_width = None if self.contact_width is None else self.contact_width / p["R_w"]
+        self.rover = self.kind.describe(self.qf, self.rate, p, self.tau, steer, stop_width=stop_width)
         self.terrain = Terrain(opt.terrain, {n: i_[n] for n in terrain_inputs(opt.terrain, opt.dims)},
                                opt.heightmap, symbolic_rim, opt.stairs_steps)
         self.kane = KaneSystem(self.q, self.u, list(self.rover.bodies))

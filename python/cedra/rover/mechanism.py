@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import casadi as ca
 
 from cedra.contract import Quantity
+from cedra.mechanics.contact import softplus
 from cedra.mechanics.kane import Body
 from cedra.mechanics.rover import CollisionPoint, RoverDescription, RoverKind, Stop, Wheel
 from cedra.mechanics.transforms import apply, e_xz, homogeneous, rot_x, rot_y, rot_z, rotation, translation
@@ -48,11 +49,23 @@ def four_bar(theta4, p):
     return C, theta5, K / dn
 
 
-def stop_torque(angle, rate, lo, hi, k, d):
-    """Compliant joint stop: -k overshoot - d rate beyond a stop, clipped so it only pushes back out."""
+def stop_torque(angle, rate, lo, hi, k, d, width=None):
+    """Compliant joint stop: -k overshoot - d rate beyond a stop, clipped so it only pushes back out.
+
+    width (rad, a symbol or a number >= 0): the smoothed law the optimizer may integrate instead (never an FMU's),
+    the stop's counterpart of contact.compliant_law's: with e the overshoot beyond a stop,
+    k softplus_w(e +- (d / k) rate sigmoid(e / w)) pushing back, the clip a softplus and the damping's onset a
+    sigmoid over the angle width w; w = 0 is the law above exactly."""
     above = ca.fmin(0, -k * (angle - hi) - d * rate)
     below = ca.fmax(0, -k * (angle - lo) - d * rate)
-    return ca.if_else(angle > hi, above, ca.if_else(angle < lo, below, 0))
+    law = ca.if_else(angle > hi, above, ca.if_else(angle < lo, below, 0))
+    if width is None:
+        return law
+    w = ca.if_else(width > 0, width, 1)
+    over, under = angle - hi, lo - angle
+    onset = lambda e: 0.5 * (1 + ca.tanh(e / (2 * w)))        # noqa: E731 (the logistic sigmoid of e / w)
+    smooth = -k * softplus(over + d / k * rate * onset(over), w) + k * softplus(under - d / k * rate * onset(under), w)
+    return ca.if_else(width > 0, smooth, law)
 
 
 def stop_energy(angle, lo, hi, k):
@@ -69,11 +82,12 @@ def drive_torque(tau_cmd, omega, stall, noload, viscous):
     return ca.fmin(ca.fmax(tau_cmd, lower), upper) - viscous * omega
 
 
-def describe(qf, rate, p, tau, steer_cmd):
+def describe(qf, rate, p, tau, steer_cmd, stop_width=None):
     """The rover for full coordinates qf (17 expressions of a scene's coordinates); rate(expr) is the time
     derivative of an expression; p: parameter symbols by name;
     tau: six torques applied to the wheels (the inputs, or the drives' output);
-    steer_cmd: (theta3, theta6) commands or None when the scene has no steering."""
+    steer_cmd: (theta3, theta6) commands or None when the scene has no steering;
+    stop_width: the joint stops' smoothing width (stop_torque; None: the FMU's law)."""
     x, y, z, yaw, pitch, roll = (qf[IDX[n]] for n in ("x", "y", "z", "yaw", "pitch", "roll"))
     th1, th2, th4, th3, th6 = (qf[IDX[n]] for n in ("theta1", "theta2", "theta4", "theta3", "theta6"))
     qdf = rate(qf)
@@ -146,10 +160,10 @@ def describe(qf, rate, p, tau, steer_cmd):
     # torques on coordinates
     Q = ca.SX.zeros(len(FULL_Q))
     lo, hi = -p["bogie_stop"], p["bogie_stop"]
-    Q[IDX["theta1"]] = stop_torque(th1, d["theta1"], lo, hi, p["stop_k"], p["stop_d"])
-    Q[IDX["theta2"]] = stop_torque(th2, d["theta2"], lo, hi, p["stop_k"], p["stop_d"])
+    Q[IDX["theta1"]] = stop_torque(th1, d["theta1"], lo, hi, p["stop_k"], p["stop_d"], stop_width)
+    Q[IDX["theta2"]] = stop_torque(th2, d["theta2"], lo, hi, p["stop_k"], p["stop_d"], stop_width)
     Q[IDX["theta4"]] = -p["fork_k"] * (th4 - p["fork_theta4_ref"]) - p["fork_d"] * d["theta4"] + \
-        stop_torque(th4, d["theta4"], p["fork_stop_lo"], p["fork_stop_hi"], p["stop_k"], p["stop_d"])
+        stop_torque(th4, d["theta4"], p["fork_stop_lo"], p["fork_stop_hi"], p["stop_k"], p["stop_d"], stop_width)
     for i in range(6):
         Q[IDX[f"gamma{i + 1}"]] = tau[i]
     V = sum(b.mass * p["g"] * b.position[2] for b in bodies)

@@ -59,9 +59,9 @@ def lift(a):
     return rot_y(-a)
 
 
-def describe(qf, rate, p, tau, steer_cmd=None) -> RoverDescription:
+def describe(qf, rate, p, tau, steer_cmd=None, stop_width=None) -> RoverDescription:
     """The rocker-bogie at full coordinates qf (15 expressions of a scene's coordinates); see cedra.mechanics.rover.
-    steer_cmd must be None: no wheel steers."""
+    steer_cmd must be None: no wheel steers; stop_width: the joint stops' smoothing width (mechanism.stop_torque)."""
     if steer_cmd is not None:
         raise ValueError("the rocker-bogie has no steering joints")
     x, y, z, yaw, pitch, roll = (qf[IDX[n]] for n in POSE)
@@ -111,10 +111,11 @@ def describe(qf, rate, p, tau, steer_cmd=None) -> RoverDescription:
     bodies += [Body(f"wheel{wh.index}", mw, wh.center, wh.omega, I_wheel, R) for wh in wheels]
 
     Qc = ca.SX.zeros(len(COORDINATES))
-    Qc[IDX["rho"]] = stop_torque(rho, d["rho"], -p["rocker_stop"], p["rocker_stop"], p["stop_k"], p["stop_d"])
+    Qc[IDX["rho"]] = stop_torque(rho, d["rho"], -p["rocker_stop"], p["rocker_stop"], p["stop_k"], p["stop_d"],
+                                 stop_width)
     for name in ("beta_L", "beta_R"):
         Qc[IDX[name]] = stop_torque(qf[IDX[name]], d[name], -p["bogie_stop"], p["bogie_stop"], p["stop_k"],
-                                    p["stop_d"])
+                                    p["stop_d"], stop_width)
     for i in range(6):
         Qc[IDX[f"gamma{i + 1}"]] = tau[i]
     V = sum(bd.mass * p["g"] * bd.position[2] for bd in bodies)
