@@ -169,8 +169,8 @@ def test_smoothed_joint_stop_tends_to_the_fmus():
 
 def test_the_optimizers_equations_smooth_the_joint_stops():
     """The optimizer's equations (optimize.Dynamics) take the contact's width to the joint stops too, as that width
-    over R_w in radians: with the bogie 1 mrad past its stop the bogie's acceleration differs from the FMU law's
-    (width 0) by the smoothing's torque; with the bogie well inside its range it does not change at all."""
+    over R_w in radians: with the bogie 1 mrad past its stop the bogie's acceleration differs from the one under the
+    FMU's law (width 0); with the bogie well inside its range it is the same."""
     import casadi as ca
     from cedra.run.optimize import Dynamics, parse
     dyn = Dynamics(parse({"scene": "bump2d", "objective": "energy", "margin": -0.5, "interval": 0.2}))

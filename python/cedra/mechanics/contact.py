@@ -218,6 +218,11 @@ def softplus(x, width):
     return ca.fmax(x, 0) + width * ca.log1p(ca.exp(-ca.fabs(x) / width))
 
 
+def sigmoid(x, width):
+    """The logistic sigmoid of x / width, 1 / (1 + exp(-x / width)): a smooth step from 0 to 1 over the width."""
+    return 0.5 * (1 + ca.tanh(x / (2 * width)))
+
+
 def compliant_law(depth, n, v_point, ground_k, ground_d, mu, v_eps, width=None):
     """The paper's ground flexibility at a point with penetration depth, unit normal n and velocity v_point:
     (F_n, F_t, v_n, v_t) with F_n = max(0, k delta - d v_n) (0 where delta <= 0) and
@@ -232,8 +237,7 @@ def compliant_law(depth, n, v_point, ground_k, ground_d, mu, v_eps, width=None):
     Fn = ca.if_else(depth > 0, ca.fmax(0, ground_k * depth - ground_d * v_n), 0)
     if width is not None:
         w = ca.if_else(width > 0, width, 1)
-        onset = 0.5 * (1 + ca.tanh(depth / (2 * w)))           # the logistic sigmoid of depth / w
-        Fn = ca.if_else(width > 0, ground_k * softplus(depth - ground_d / ground_k * v_n * onset, w), Fn)
+        Fn = ca.if_else(width > 0, ground_k * softplus(depth - ground_d / ground_k * v_n * sigmoid(depth, w), w), Fn)
     Ft = -mu * Fn * v_t / ca.sqrt(ca.dot(v_t, v_t) + v_eps ** 2)
     return Fn, Ft, v_n, v_t
 

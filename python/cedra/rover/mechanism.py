@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import casadi as ca
 
 from cedra.contract import Quantity
-from cedra.mechanics.contact import softplus
+from cedra.mechanics.contact import sigmoid, softplus
 from cedra.mechanics.kane import Body
 from cedra.mechanics.rover import CollisionPoint, RoverDescription, RoverKind, Stop, Wheel
 from cedra.mechanics.transforms import apply, e_xz, homogeneous, rot_x, rot_y, rot_z, rotation, translation
@@ -63,8 +63,8 @@ def stop_torque(angle, rate, lo, hi, k, d, width=None):
         return law
     w = ca.if_else(width > 0, width, 1)
     over, under = angle - hi, lo - angle
-    onset = lambda e: 0.5 * (1 + ca.tanh(e / (2 * w)))        # noqa: E731 (the logistic sigmoid of e / w)
-    smooth = -k * softplus(over + d / k * rate * onset(over), w) + k * softplus(under - d / k * rate * onset(under), w)
+    smooth = -k * softplus(over + d / k * rate * sigmoid(over, w), w) + \
+        k * softplus(under - d / k * rate * sigmoid(under, w), w)
     return ca.if_else(width > 0, smooth, law)
 
 
