@@ -52,7 +52,8 @@ kinks and a jump in the state derivative; the friction law is already regularize
 crosses them with error control (the FMU locates them; CVODES shortens its steps), and the sensitivities carry no
 jump term at a switch. `solver.smoothing` replaces them, in the optimizer's equations only, by the smoothed law
 of contact.compliant_law (a softplus of the clip and a sigmoid of the onset over a depth width w, w = 0 the FMU's
-law exactly), and solves a continuation: one stage per width, each started from the previous stage's decisions
+law exactly), the joint stops' law likewise (mechanism.stop_torque, over w / R_w in radians: the same clip and
+onset), and solves a continuation: one stage per width, each started from the previous stage's decisions
 and multipliers. The width is an input of the compiled equations, so one library serves every stage; the FMUs
 are generated without it. The replay integrates the FMU's own law, so with a last width > 0 its deviation from the
 optimizer's path measures the smoothing too (docs/optimize.md).
