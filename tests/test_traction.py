@@ -348,3 +348,70 @@ def test_a_lifted_wheel_lands_at_its_rolling_rate(paper_runs):
     assert np.median(misses[2]) < 1.0 and np.max(misses[2]) < 6.0
     assert np.median(misses[1]) > np.median(misses[2])
     assert sliding[2] <= 2 < sliding[1]
+
+
+def _phases(f, ins, outs, pars, values, speed_at, seconds):
+    """ctrl.phase and the summed torque at every sample of `seconds` of a controller's sample function fed a
+    commanded 0.2 m/s and the measured speed speed_at(phase) (the rest of its inputs at their start values)."""
+    inp = {q.name: q.start for q in ins} | {"cmd.v": 0.2}
+    par = [({q.name: q.start for q in pars} | values)[q.name] for q in pars]
+    iy_phase, iy_tau = outs.index("ctrl.phase"), [outs.index(f"tau[{k}]") for k in range(1, 7)]
+    xd, phase, history = np.zeros(len(STATES)), 0.0, []
+    for _ in range(round(seconds / 0.01)):
+        y, xd = f([(inp | {"body.vx": speed_at(phase)})[q.name] for q in ins], par, xd)
+        y, xd = np.array(y).ravel(), np.array(xd).ravel()
+        phase = y[iy_phase]
+        history.append((phase, float(np.sum(y[iy_tau]))))
+    return np.array(history)
+
+
+def _assert_runs(phases, expected):
+    """The phases of a history run as expected: (phase, samples), each within a sample (the timers add periods)."""
+    runs = [(int(p[0]), len(p)) for p in np.split(phases, np.flatnonzero(np.diff(phases)) + 1)]
+    assert [r[0] for r in runs] == [e[0] for e in expected], runs
+    assert all(abs(r[1] - e[1]) <= 1 for r, e in zip(runs[:-1], expected[:-1])), runs
+
+
+@pytest.mark.parametrize("rover", ["cedra", "rocker_bogie"])
+def test_a_stalled_rover_backs_off_and_takes_a_run_up(rover):
+    """Mode 2's stall recovery, sample by sample: a rover that does not move at the commanded 0.2 m/s is stalled
+    after ctrl.stall_time (1 s), backs off for ctrl.backoff_time (1.5 s: the summed torque turns negative), takes
+    a run-up (more torque than the command's loop asked at the same speed), and stalls again within it if it
+    still does not move; a run-up that makes its speed lasts ctrl.runup_time (3 s) and the command holds again.
+    With ctrl.runup_v = 0, in mode 1, or at no command, it never leaves phase 0."""
+    from cedra.models.controller import outputs, rover_inputs, rover_outputs, rover_params, rover_sample_function
+    if rover == "cedra":
+        f, ins, outs, pars = sample_function("2d"), inputs("2d"), [q.name for q in outputs("2d")], params()
+    else:
+        f, ins = rover_sample_function(rover, "2d"), rover_inputs(rover, "2d")
+        outs, pars = [q.name for q in rover_outputs(rover, "2d")], rover_params(rover, "2d")
+    stuck = _phases(f, ins, outs, pars, {"ctrl.mode": 2}, lambda phase: 0.0, 5.9)
+    _assert_runs(stuck[:, 0], [(0, 100), (1, 150), (2, 100), (1, 150), (2, 100)])
+    drive, back, run = stuck[50, 1], stuck[120, 1], stuck[260, 1]
+    assert back < 0 < drive < run, (drive, back, run)
+    # a run-up that makes its speed (0.3 m/s measured) is not a stall; then the command's speed again
+    moving = _phases(f, ins, outs, pars, {"ctrl.mode": 2}, lambda phase: 0.3 if phase == 2 else 0.0, 6.0)
+    _assert_runs(moving[:, 0], [(0, 100), (1, 150), (2, 300), (0, 50)])
+    for values in ({"ctrl.mode": 2, "ctrl.runup_v": 0.0}, {"ctrl.mode": 1}):
+        assert np.all(_phases(f, ins, outs, pars, values, lambda phase: 0.0, 3.0)[:, 0] == 0), values
+
+
+def test_a_run_up_takes_the_rover_over_a_step_it_stalls_at():
+    """CEDRA at a 0.5 R_w step with mu 0.4 (step2d, 0.2 m/s, 15 s): holding the commanded speed, traction control
+    stops with its bogies' rear wheels at the face, every wheel sliding at mu (measured: body.x 1.037 m with
+    ctrl.runup_v = 0); with the default stall recovery it backs off, takes a run-up and gets over."""
+    rec = ["body.x", "ctrl.phase"]
+    ends = {}
+    for runup_v in (0.0, None):
+        values = {"ctrl.mode": 2} | ({} if runup_v is None else {"ctrl.runup_v": runup_v})
+        loop = DriveLoop(scenario_fmu("step2d", BUILD), scenario_fmu("drive2d", BUILD),
+                         plant_values={"terrain_h": 0.0325, "mu": 0.4}, controller_values=values)
+        try:
+            r = loop.run(15.0, 0.01, lambda t: {"cmd.v": 0.2}, record=rec)
+        finally:
+            loop.close()
+        assert r.ok, r.messages[-3:]
+        ends[runup_v] = (r.column("body.x")[-1], set(np.unique(r.column("ctrl.phase"))))
+    print(f"body.x at 15 s and the phases: without a run-up {ends[0.0]}, with {ends[None]}")
+    assert ends[0.0][0] < 1.1 and ends[0.0][1] == {0.0}
+    assert ends[None][0] > 2.0 and ends[None][1] == {0.0, 1.0, 2.0}

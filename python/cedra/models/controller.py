@@ -4,7 +4,7 @@ steering (Eqs. 14-22) in the loop, as a sampled-data block beside the plant FMU.
 Every `ctrl.period` (default 0.01 s) it reads the commanded forward speed `cmd.v` and yaw rate `cmd.yaw_rate`
 (3D) and the plant's outputs (connected name to name: `body.*`, `bogie.theta[1..2]`, `bogie.rate[1..2]`,
 `fork.theta4`, `fork.rate4`, `steer.theta[1..2]`, `wheel[i].omega`, `wheel[i].psi_R`, `wheel[i].psi_R_rate`,
-`wheel[i].xi`) and gives `tau[1..6]` and `steer[1..2]` (3D) with the plant's input names. Two modes:
+`wheel[i].xi`) and gives `tau[1..6]` and `steer[1..2]` (3D) with the plant's input names. Three modes:
 
     ctrl.mode = 1  inverse kinematics (the default): the wheel rates omega_ref of Eq. 13 for the commanded speed
                    and yaw rate at the measured pose, contact angles and slips; a PI loop per wheel (ctrl.rate_kp,
@@ -25,6 +25,8 @@ Every `ctrl.period` (default 0.01 s) it reads the commanded forward speed `cmd.v
                    the measured body motion, joint rates and contact angles) by ctrl.spin_margin (wider where
                    the sampled loop needs it: _guard_margin) is dropped (_spin_guard), and a loop (ctrl.roll_kp)
                    holds every wheel at its rolling rate, so a lifted wheel lands turning as the ground asks.
+                   A rover that stalls (slower than a quarter of the command for ctrl.stall_time) backs off and
+                   takes a run-up at ctrl.runup_v (_runup; the output ctrl.phase says which).
 In every mode (3D) the steered wheels get the geometric steering angles (Eqs. 14-22) for (cmd.v, cmd.yaw_rate),
 and the outputs ctrl.Fn_est[i] give the balance's normal forces for the commanded torques (no force sensor: the
 pose, the contact angles and the torques only). Every mode is evaluated at every sample and the mode selects
@@ -100,7 +102,22 @@ def params() -> list[Quantity]:
         # at T = 0.01 s, so a lifted wheel is back at its rolling rate within about one sample (stable below 2)
         Quantity("ctrl.roll_kp", 0.1, "N.m.s/rad", "traction mode: gain of the loop that holds every wheel at its "
                  "rolling rate (what keeps a lifted wheel ready to land)", 0.0),
-    ] + _geometry_params()
+    ] + _runup_params() + _geometry_params()
+
+
+def _runup_params() -> list[Quantity]:
+    """Mode 2's stall recovery (_runup); every rover's controller."""
+    return [
+        Quantity("ctrl.runup_v", 0.4, "m/s", "traction mode: a stalled rover backs off and takes a run-up at this "
+                 "speed (or the commanded one if faster; 0: no run-up, a stalled rover stays where it stalled)",
+                 0.0, 5.0),
+        Quantity("ctrl.stall_time", 1.0, "s", "traction mode: the rover has stalled when its speed has stayed below "
+                 "a quarter of the commanded speed for this long", 1e-3, 1e4),
+        Quantity("ctrl.backoff_time", 1.5, "s", "traction mode: a stalled rover backs off at the commanded speed for "
+                 "this long before its run-up", 0.0, 1e4),
+        Quantity("ctrl.runup_time", 3.0, "s", "traction mode: the run-up lasts this long, then the commanded speed "
+                 "holds again (a rover that stalls again backs off again)", 0.0, 1e4),
+    ]
 
 
 def inputs(dims: str) -> list[Quantity]:
@@ -157,6 +174,8 @@ def _estimate_outputs() -> list[Quantity]:
                      "the commanded torques") for i in WHEELS]
     outs.append(Quantity("ctrl.ratio", 0.0, "1", "largest |tau_i| / (R_w Fn_est_i) over the wheels the balance "
                          "loads: the friction the commanded torques ask for"))
+    outs.append(Quantity("ctrl.phase", 0.0, "1", "traction mode's stall recovery: 0 driving at the commanded speed, "
+                         "1 backing off after a stall, 2 taking the run-up (0 in the other modes)"))
     return outs
 
 
@@ -166,8 +185,50 @@ def _pi(error, integral, kp, ki, limit, period):
     return ca.fmin(ca.fmax(u, -limit), limit), ca.if_else(ca.fabs(u) <= limit, integral + error * period, integral)
 
 
-STATES = ["speed_integral"] + [f"rate_integral[{k}]" for k in WHEELS] + ["speed_trim", "yaw_trim", "elapsed"]
+STATES = ["speed_integral"] + [f"rate_integral[{k}]" for k in WHEELS] + ["speed_trim", "yaw_trim", "elapsed",
+                                                                         "runup_phase", "phase_time", "stall_time"]
 TRIM_LIMITS = (1.0, 1.0)    # m/s, rad/s: the trims correct skid and slip, they do not take over the command
+# mode 2's stall recovery (_runup): its phases (the state runup_phase, the output ctrl.phase) and what a stall is
+DRIVE, BACK_OFF, RUN_UP = 0, 1, 2
+STALL_FRACTION = 0.25       # of the commanded speed
+MIN_COMMAND = 1e-3          # m/s: a smaller command is a stop, never a stall
+
+
+def _runup(p, xd, cmd_v, v):
+    """Mode 2's stall recovery: (the speed its speed loop follows, whether that loop's integral restarts, the next
+    (runup_phase, phase_time, stall_time) of STATES).
+
+    Traction control holds the commanded speed with every wheel at the smallest common friction ratio, so where
+    the friction cannot carry the rover up an obstacle at that speed it stops there, every wheel sliding at mu (a
+    0.5 R_w step at mu 0.4: CEDRA stops with its bogies' rear wheels on the face). Such an obstacle may still be
+    climbed dynamically, as a driver would: back off, then take a run-up. When the speed has stayed below
+    STALL_FRACTION of the command for ctrl.stall_time, the rover backs off at the commanded speed for
+    ctrl.backoff_time, then drives at ctrl.runup_v (the command's direction; the command if faster) for
+    ctrl.runup_time, and then at the command again; a rover that stalls in its run-up backs off again. Each switch
+    of direction restarts the speed loop's integral, so the wound-up torque of the stall does not delay the back-off.
+    A command below MIN_COMMAND, or ctrl.runup_v = 0, returns to driving at the command."""
+    T = p["ctrl.period"]
+    phase, phase_time, stall_time = xd[10], xd[11], xd[12]
+    speed = ca.fabs(cmd_v)
+    direction = ca.sign(cmd_v)
+    active = ca.logic_and(speed > MIN_COMMAND, p["ctrl.runup_v"] > 0)
+    backing = ca.fabs(phase - BACK_OFF) < 0.5
+    running = ca.fabs(phase - RUN_UP) < 0.5
+    slow = ca.logic_and(active, ca.logic_and(v * direction < STALL_FRACTION * speed, ca.logic_not(backing)))
+    stall_next = ca.if_else(slow, stall_time + T, 0)
+    time_next = phase_time + T
+    phase_next = ca.if_else(ca.logic_not(active), DRIVE,
+                            ca.if_else(stall_next >= p["ctrl.stall_time"], BACK_OFF,
+                                       ca.if_else(ca.logic_and(backing, time_next >= p["ctrl.backoff_time"]), RUN_UP,
+                                                  ca.if_else(ca.logic_and(running, time_next >= p["ctrl.runup_time"]),
+                                                             DRIVE, ca.if_else(backing, BACK_OFF,
+                                                                               ca.if_else(running, RUN_UP, DRIVE))))))
+    switched = ca.fabs(phase_next - phase) > 0.5
+    target = ca.if_else(phase_next < 0.5, cmd_v,
+                        ca.if_else(phase_next < 1.5, -cmd_v, direction * ca.fmax(p["ctrl.runup_v"], speed)))
+    restart = ca.logic_and(switched, phase_next > 0.5)
+    states = ca.vertcat(phase_next, ca.if_else(switched, 0, time_next), ca.if_else(switched, 0, stall_next))
+    return target, restart, states
 
 
 def _by_mode(mode, equal_torques, inverse_kinematics, traction):
@@ -176,15 +237,26 @@ def _by_mode(mode, equal_torques, inverse_kinematics, traction):
 
 
 def _select(mode, speed, ik, traction, xd, trim_v, trim_w, period):
-    """The selected mode's six torques and the next states (STATES): the speed PI (torque, integral) for modes 0 and
-    2, the rate loops ((torque, integral) per wheel) and the trims for mode 1, the traction torques for mode 2;
-    every rover's controller."""
+    """The selected mode's six torques, the next states (STATES) and the output ctrl.phase: the speed PI (torque,
+    integral) for mode 0, the rate loops ((torque, integral) per wheel) and the trims for mode 1, and for mode 2
+    its torques, its speed PI's integral and its stall recovery's states (_runup); every rover's controller."""
     speed_tau, speed_int = speed
-    tau = [_by_mode(mode, speed_tau, ik[k][0], traction[k]) for k in range(6)]
-    xd_next = ca.vertcat(_by_mode(mode, speed_int, xd[0], speed_int),
+    traction_tau, traction_int, runup = traction
+    tau = [_by_mode(mode, speed_tau, ik[k][0], traction_tau[k]) for k in range(6)]
+    xd_next = ca.vertcat(_by_mode(mode, speed_int, xd[0], traction_int),
                          *[_by_mode(mode, xd[1 + k], ik[k][1], xd[1 + k]) for k in range(6)],
-                         _by_mode(mode, xd[7], trim_v, xd[7]), _by_mode(mode, xd[8], trim_w, xd[8]), xd[9] + period)
-    return tau, xd_next
+                         _by_mode(mode, xd[7], trim_v, xd[7]), _by_mode(mode, xd[8], trim_w, xd[8]), xd[9] + period,
+                         *[_by_mode(mode, xd[10 + k], xd[10 + k], runup[k]) for k in range(3)])
+    return tau, xd_next, _by_mode(mode, 0, 0, runup[0])
+
+
+def _traction_speed_loop(p, xd, cmd_v, v):
+    """Mode 2's speed PI on the speed its stall recovery asks for (_runup): (summed torque demand, next integral,
+    next recovery states); every rover's controller."""
+    target, restart, runup = _runup(p, xd, cmd_v, v)
+    tau, integral = _pi(target - v, ca.if_else(restart, 0, xd[0]), p["ctrl.speed_kp"], p["ctrl.speed_ki"],
+                        p["ctrl.tau_max"], p["ctrl.period"])
+    return 6 * tau, integral, runup
 
 
 def _loads(dims, i, p):
@@ -345,10 +417,11 @@ def sample_function(dims: str) -> ca.Function:
           for k in range(6)]
     mode = p["ctrl.mode"]
     loads = _loads(dims, i, p)
-    traction_tau = _traction_control(dims, i, p, loads, 6 * speed_tau)
-    tau, xd_next = _select(mode, (speed_tau, speed_int), ik, traction_tau, xd, trim_v, trim_w, T)
+    demand, traction_int, runup = _traction_speed_loop(p, xd, cmd_v, v)
+    traction = (_traction_control(dims, i, p, loads, demand), traction_int, runup)
+    tau, xd_next, phase = _select(mode, (speed_tau, speed_int), ik, traction, xd, trim_v, trim_w, T)
     fn_est, ratio = _estimate(loads, p, tau, [_group(dims, k) for k in WHEELS])
-    y = tau + ([steer[0], steer[1]] if three else []) + [rates[k] for k in range(6)] + [v] + fn_est + [ratio]
+    y = tau + ([steer[0], steer[1]] if three else []) + [rates[k] for k in range(6)] + [v] + fn_est + [ratio, phase]
     assert len(y) == len(outs)
     return ca.Function("cedra_sample", [inp, par, xd], [ca.vertcat(*y), xd_next], ["inp", "par", "xd"],
                        ["y", "xd_next"])
@@ -385,7 +458,8 @@ def controller_spec(dims: str = "3d", name: str | None = None, rover: str = "ced
 
 ROVER_MODES = ("equal_torques", "inverse_kinematics", "traction_control")      # modes 0, 1, 2
 _ROVER_CTRL = ("ctrl.period", "ctrl.tau_max", "ctrl.ramp_time", "ctrl.speed_kp", "ctrl.speed_ki", "ctrl.rate_kp",
-               "ctrl.rate_ki", "ctrl.trim_ki", "ctrl.spin_margin", "ctrl.ratio_max", "ctrl.roll_kp")
+               "ctrl.rate_ki", "ctrl.trim_ki", "ctrl.spin_margin", "ctrl.ratio_max", "ctrl.roll_kp", "ctrl.runup_v",
+               "ctrl.stall_time", "ctrl.backoff_time", "ctrl.runup_time")
 
 
 def _rover_kind(rover: str):
@@ -495,10 +569,12 @@ def rover_sample_function(rover: str, dims: str) -> ca.Function:
     mode = p["ctrl.mode"]
     st = rover_statics(kind, dims)
     loads, rolling = _rover_loads_and_rolling(kind, dims, i, p)
-    traction = _guarded(_traction_torques(loads, p, 6 * speed_tau, st.multiplicity, st.group_of), i, p, rolling)
-    tau, xd_next = _select(mode, (speed_tau, speed_int), ik, traction, xd, trim_v, trim_w, T)
+    demand, traction_int, runup = _traction_speed_loop(p, xd, cmd_v, v)
+    traction = (_guarded(_traction_torques(loads, p, demand, st.multiplicity, st.group_of), i, p, rolling),
+                traction_int, runup)
+    tau, xd_next, phase = _select(mode, (speed_tau, speed_int), ik, traction, xd, trim_v, trim_w, T)
     fn_est, ratio = _estimate(loads, p, tau, st.group_of)
-    y = tau + [rates[k] for k in range(6)] + [v] + fn_est + [ratio]
+    y = tau + [rates[k] for k in range(6)] + [v] + fn_est + [ratio, phase]
     assert len(y) == len(outs)
     return ca.Function("cedra_sample", [inp, par, xd], [ca.vertcat(*y), xd_next], ["inp", "par", "xd"],
                        ["y", "xd_next"])
