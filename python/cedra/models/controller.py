@@ -25,8 +25,8 @@ Every `ctrl.period` (default 0.01 s) it reads the commanded forward speed `cmd.v
                    the measured body motion, joint rates and contact angles) by ctrl.spin_margin (wider where
                    the sampled loop needs it: _guard_margin) is dropped (_spin_guard), and a loop (ctrl.roll_kp)
                    holds every wheel at its rolling rate, so a lifted wheel lands turning as the ground asks.
-                   A rover that stalls (slower than a quarter of the command for ctrl.stall_time) backs off and
-                   takes a run-up at ctrl.runup_v (_runup; the output ctrl.phase says which).
+                   A rover that stalls (slower than a quarter of the command for ctrl.stall_time with the speed
+                   loop at its limit) backs off and takes a run-up at ctrl.runup_v (_runup; ctrl.phase says which).
 In every mode (3D) the steered wheels get the geometric steering angles (Eqs. 14-22) for (cmd.v, cmd.yaw_rate),
 and the outputs ctrl.Fn_est[i] give the balance's normal forces for the commanded torques (no force sensor: the
 pose, the contact angles and the torques only). Every mode is evaluated at every sample and the mode selects
@@ -108,11 +108,11 @@ def params() -> list[Quantity]:
 def _runup_params() -> list[Quantity]:
     """Mode 2's stall recovery (_runup); every rover's controller."""
     return [
-        Quantity("ctrl.runup_v", 0.4, "m/s", "traction mode: a stalled rover backs off and takes a run-up at this "
+        Quantity("ctrl.runup_v", 0.6, "m/s", "traction mode: a stalled rover backs off and takes a run-up at this "
                  "speed (or the commanded one if faster; 0: no run-up, a stalled rover stays where it stalled)",
                  0.0, 5.0),
-        Quantity("ctrl.stall_time", 1.0, "s", "traction mode: the rover has stalled when its speed has stayed below "
-                 "a quarter of the commanded speed for this long", 1e-3, 1e4),
+        Quantity("ctrl.stall_time", 1.5, "s", "traction mode: the rover has stalled when its speed has stayed below "
+                 "a quarter of the commanded speed for this long with the speed loop at its torque limit", 1e-3, 1e4),
         Quantity("ctrl.backoff_time", 1.5, "s", "traction mode: a stalled rover backs off at the commanded speed for "
                  "this long before its run-up", 0.0, 1e4),
         Quantity("ctrl.runup_time", 3.0, "s", "traction mode: the run-up lasts this long, then the commanded speed "
@@ -194,6 +194,12 @@ STALL_FRACTION = 0.25       # of the commanded speed
 MIN_COMMAND = 1e-3          # m/s: a smaller command is a stop, never a stall
 
 
+def _phase_speed(phase, cmd_v, p):
+    """The speed mode 2's speed loop follows in a phase of its stall recovery (_runup)."""
+    run_up = ca.sign(cmd_v) * ca.fmax(p["ctrl.runup_v"], ca.fabs(cmd_v))
+    return ca.if_else(phase < 0.5, cmd_v, ca.if_else(phase < 1.5, -cmd_v, run_up))
+
+
 def _runup(p, xd, cmd_v, v):
     """Mode 2's stall recovery: (the speed its speed loop follows, whether that loop's integral restarts, the next
     (runup_phase, phase_time, stall_time) of STATES).
@@ -201,21 +207,26 @@ def _runup(p, xd, cmd_v, v):
     Traction control holds the commanded speed with every wheel at the smallest common friction ratio, so where
     the friction cannot carry the rover up an obstacle at that speed it stops there, every wheel sliding at mu (a
     0.5 R_w step at mu 0.4: CEDRA stops with its bogies' rear wheels on the face). Such an obstacle may still be
-    climbed dynamically, as a driver would: back off, then take a run-up. When the speed has stayed below
-    STALL_FRACTION of the command for ctrl.stall_time, the rover backs off at the commanded speed for
-    ctrl.backoff_time, then drives at ctrl.runup_v (the command's direction; the command if faster) for
-    ctrl.runup_time, and then at the command again; a rover that stalls in its run-up backs off again. Each switch
-    of direction restarts the speed loop's integral, so the wound-up torque of the stall does not delay the back-off.
-    A command below MIN_COMMAND, or ctrl.runup_v = 0, returns to driving at the command."""
-    T = p["ctrl.period"]
+    climbed dynamically, as a driver would: back off, then take a run-up. The rover has stalled when its speed has
+    stayed below STALL_FRACTION of the command for ctrl.stall_time while the speed loop asks all it can (its
+    output at +-ctrl.tau_max in the command's direction): a rover that stands at a face while the loop's integral
+    still grows often gets up once the torque suffices, and backing off would throw that away. Stalled, it backs
+    off at the commanded speed for ctrl.backoff_time, then drives at ctrl.runup_v (the command's direction; the
+    command if faster) for ctrl.runup_time, and then at the command again; a rover that stalls in its run-up backs
+    off again. Each switch of direction restarts the speed loop's integral, so the wound-up torque of the stall
+    does not delay the back-off. A command below MIN_COMMAND, or ctrl.runup_v = 0, returns to driving at the
+    command."""
+    T, kp, ki = p["ctrl.period"], p["ctrl.speed_kp"], p["ctrl.speed_ki"]
     phase, phase_time, stall_time = xd[10], xd[11], xd[12]
     speed = ca.fabs(cmd_v)
     direction = ca.sign(cmd_v)
     active = ca.logic_and(speed > MIN_COMMAND, p["ctrl.runup_v"] > 0)
     backing = ca.fabs(phase - BACK_OFF) < 0.5
     running = ca.fabs(phase - RUN_UP) < 0.5
-    slow = ca.logic_and(active, ca.logic_and(v * direction < STALL_FRACTION * speed, ca.logic_not(backing)))
-    stall_next = ca.if_else(slow, stall_time + T, 0)
+    error = _phase_speed(phase, cmd_v, p) - v
+    all_it_can = direction * (kp * error + ki * (xd[0] + error * T)) >= p["ctrl.tau_max"]
+    slow = ca.logic_and(v * direction < STALL_FRACTION * speed, all_it_can)
+    stall_next = ca.if_else(ca.logic_and(active, ca.logic_and(slow, ca.logic_not(backing))), stall_time + T, 0)
     time_next = phase_time + T
     phase_next = ca.if_else(ca.logic_not(active), DRIVE,
                             ca.if_else(stall_next >= p["ctrl.stall_time"], BACK_OFF,
@@ -224,11 +235,9 @@ def _runup(p, xd, cmd_v, v):
                                                              DRIVE, ca.if_else(backing, BACK_OFF,
                                                                                ca.if_else(running, RUN_UP, DRIVE))))))
     switched = ca.fabs(phase_next - phase) > 0.5
-    target = ca.if_else(phase_next < 0.5, cmd_v,
-                        ca.if_else(phase_next < 1.5, -cmd_v, direction * ca.fmax(p["ctrl.runup_v"], speed)))
     restart = ca.logic_and(switched, phase_next > 0.5)
     states = ca.vertcat(phase_next, ca.if_else(switched, 0, time_next), ca.if_else(switched, 0, stall_next))
-    return target, restart, states
+    return _phase_speed(phase_next, cmd_v, p), restart, states
 
 
 def _by_mode(mode, equal_torques, inverse_kinematics, traction):
