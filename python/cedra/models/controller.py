@@ -228,12 +228,12 @@ def _runup(p, xd, cmd_v, v):
     slow = ca.logic_and(v * direction < STALL_FRACTION * speed, all_it_can)
     stall_next = ca.if_else(ca.logic_and(active, ca.logic_and(slow, ca.logic_not(backing))), stall_time + T, 0)
     time_next = phase_time + T
-    phase_next = ca.if_else(ca.logic_not(active), DRIVE,
-                            ca.if_else(stall_next >= p["ctrl.stall_time"], BACK_OFF,
-                                       ca.if_else(ca.logic_and(backing, time_next >= p["ctrl.backoff_time"]), RUN_UP,
-                                                  ca.if_else(ca.logic_and(running, time_next >= p["ctrl.runup_time"]),
-                                                             DRIVE, ca.if_else(backing, BACK_OFF,
-                                                                               ca.if_else(running, RUN_UP, DRIVE))))))
+    # the transitions, the weakest first: each later one overrides what the earlier ones chose
+    phase_next = ca.if_else(backing, BACK_OFF, ca.if_else(running, RUN_UP, DRIVE))
+    phase_next = ca.if_else(ca.logic_and(running, time_next >= p["ctrl.runup_time"]), DRIVE, phase_next)
+    phase_next = ca.if_else(ca.logic_and(backing, time_next >= p["ctrl.backoff_time"]), RUN_UP, phase_next)
+    phase_next = ca.if_else(stall_next >= p["ctrl.stall_time"], BACK_OFF, phase_next)
+    phase_next = ca.if_else(active, phase_next, DRIVE)
     switched = ca.fabs(phase_next - phase) > 0.5
     restart = ca.logic_and(switched, phase_next > 0.5)
     states = ca.vertcat(phase_next, ca.if_else(switched, 0, time_next), ca.if_else(switched, 0, stall_next))
