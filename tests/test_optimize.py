@@ -190,6 +190,25 @@ def test_the_optimizers_equations_smooth_the_joint_stops():
     assert bogie_acceleration(-0.2, 0.0) == bogie_acceleration(-0.2, w)
 
 
+def test_the_optimizers_contact_forces_are_finite_above_the_ground():
+    """The optimizer's wheel forces (optimize.Dynamics.forces: the FMU's wheel[i].Fn, Fx, what the peak-friction
+    objective constrains) on the smoothed law, the rover held at heights from the ground up to 0.6 m: finite
+    everywhere. A lifted wheel's smoothed normal force is positive but can be so small that its square underflows
+    (depths of -0.07 to -0.15 m at a width of 2e-4 m); a wheel with several contact slots normalizes the sum of
+    their forces, which must not divide by that zero norm."""
+    import casadi as ca
+    from cedra.run.optimize import Dynamics, parse
+    dyn = Dynamics(parse({"scene": "bump2d", "objective": "energy", "margin": -0.5, "interval": 0.2}))
+    z = dyn.model.q_names.index("z")
+    for width in (2e-4, 5e-5):
+        dyn.width = width
+        for height in np.arange(0.0, 0.6, 0.0025):
+            x = np.zeros(dyn.nx)
+            x[z] = height
+            fn, fx = (np.array(ca.evalf(f)).ravel() for f in dyn.forces(ca.DM(dyn.reduced(x))))
+            assert np.all(np.isfinite(fn)) and np.all(np.isfinite(fx)), (width, height, fn, fx)
+
+
 def test_smoothed_model_forms_no_fmu():
     from cedra.models.plant import CedraModel
     from cedra.models.scene import load_shipped

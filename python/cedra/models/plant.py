@@ -344,10 +344,13 @@ class CedraModel:
         def pick(vals):
             return sum(d * v for d, v in zip(deepest, vals))
         fn_sum = sum(c["Fn"] for c in parts)
-        carried = fn_sum > 0
         fn_vec = sum(c["Fn"] * c["geo"].normal for c in parts)
-        n_eff = ca.if_else(carried, fn_vec / ca.if_else(carried, ca.norm_2(fn_vec), 1),
-                           pick([c["geo"].normal for c in parts]))
+        fn_norm = ca.norm_2(fn_vec)
+        # carried: the force has a direction. The forces are >= 0, so a nonzero norm means a positive sum; not the
+        # sum's sign, because a smoothed law's lifted wheel has forces so small (1e-160 N) that their squares, and
+        # the norm, underflow to 0 while their sum does not
+        carried = fn_norm > 0
+        n_eff = ca.if_else(carried, fn_vec / ca.if_else(carried, fn_norm, 1), pick([c["geo"].normal for c in parts]))
         weight = [ca.if_else(carried, c["Fn"] / ca.if_else(carried, fn_sum, 1), d) for c, d in zip(parts, deepest)]
         point = sum(w * c["geo"].point for w, c in zip(weight, parts))
         frame = contact_frame(wh.axle, n_eff)
