@@ -216,15 +216,16 @@ def _runup(p, xd, cmd_v, v):
     off again. Each switch of direction restarts the speed loop's integral, so the wound-up torque of the stall
     does not delay the back-off. A command below MIN_COMMAND, or ctrl.runup_v = 0, returns to driving at the
     command."""
-    T, kp, ki = p["ctrl.period"], p["ctrl.speed_kp"], p["ctrl.speed_ki"]
+    T, lim = p["ctrl.period"], p["ctrl.tau_max"]
     phase, phase_time, stall_time = xd[10], xd[11], xd[12]
     speed = ca.fabs(cmd_v)
     direction = ca.sign(cmd_v)
     active = ca.logic_and(speed > MIN_COMMAND, p["ctrl.runup_v"] > 0)
     backing = ca.fabs(phase - BACK_OFF) < 0.5
     running = ca.fabs(phase - RUN_UP) < 0.5
-    error = _phase_speed(phase, cmd_v, p) - v
-    all_it_can = direction * (kp * error + ki * (xd[0] + error * T)) >= p["ctrl.tau_max"]
+    # the speed loop at this sample's phase, before any switch: at its limit in the command's direction?
+    asked, _ = _pi(_phase_speed(phase, cmd_v, p) - v, xd[0], p["ctrl.speed_kp"], p["ctrl.speed_ki"], lim, T)
+    all_it_can = direction * asked >= lim
     slow = ca.logic_and(v * direction < STALL_FRACTION * speed, all_it_can)
     stall_next = ca.if_else(ca.logic_and(active, ca.logic_and(slow, ca.logic_not(backing))), stall_time + T, 0)
     time_next = phase_time + T
