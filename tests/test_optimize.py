@@ -52,6 +52,9 @@ GOOD = 'scene = "bump2d"\nobjective = "energy"\nmargin = 0.4\ninterval = 0.1\n'
      "solver.hessian", "one Hessian per smoothing stage"),
     (GOOD.replace('"energy"', '"time"') + "[solver]\nhessian = \"differenced\"\n", "solver.hessian",
      "needs a fixed horizon"),
+    (GOOD.replace('"energy"', '"peak_friction"') + "[solver]\nhessian = \"differenced\"\n", "solver.hessian",
+     "formed for the energy objective"),
+    (GOOD + "[solver]\nspin_rates = \"lifted\"\n", "solver.spin_rates", "must be one of"),
 ])
 def test_bad_problem_names_file_and_key(tmp_path, text, key, reason):
     path = tmp_path / "bad.toml"
@@ -113,6 +116,99 @@ def test_the_differenced_hessian_is_the_lagrangians_own():
     # what IPOPT gets: the upper triangle of the same matrix, on the declared block pattern
     triu = np.array(ca.densify(hess(wv, ca.DM(0, 1), lam_f, lam)))
     assert np.allclose(triu, np.triu(got), atol=0) and np.allclose(np.triu(got) + np.triu(got, 1).T, got)
+
+
+@pytest.mark.parametrize("free_dt, peak", [(False, False), (True, False), (False, True)])
+def test_the_carried_spin_rates_jacobian_is_the_chain_rules(free_dt, peak):
+    """The carried-spin transcription's constraint Jacobian (the interval Jacobians chained through the spin rates
+    by hand) against central differences of its own constraints, at a controller run's nodes toward the bump's
+    foot (3 intervals of 0.2 s, the smoothed law): every entry, the time column (free horizon) and the node
+    forces' rows (peak_friction) included, and nothing outside the declared pattern."""
+    from cedra.run.shooting import CarriedSpinShooting
+    problem = optimize.load(REPO / "examples" / "optimize" / "bump2d_short_energy.toml")
+    dyn = optimize.Dynamics(problem)
+    dyn.width = 2e-4
+    r = optimize.controller_run(problem, dyn, "inverse_kinematics", 1.0, BUILD)
+    n, dt = 3, 0.2
+    X, U = optimize.initial_guess(r.names, r.rows, n, dt)
+    shooting = CarriedSpinShooting(dyn, X[:, 0], n, dt, 1e-11, optimize.goal(problem, dyn), free_dt, peak)
+    w = np.concatenate([dyn.reduced(X)[shooting.body].ravel(order="F"), U.T.ravel(order="F"), [dt], [0.3]])
+    got = shooting.jacobian(w)
+    differenced = np.zeros_like(got)
+    for j in range(shooting.nw):
+        h = 1e-6 * max(1.0, abs(w[j]))
+        up, down = w.copy(), w.copy()
+        up[j] += h
+        down[j] -= h
+        differenced[:, j] = (shooting.g(up) - shooting.g(down)) / (2 * h)
+    if not free_dt:
+        differenced[:, -2] = 0.0                 # a constant of the problem: no column of the Jacobian
+    assert np.max(np.abs(got - differenced)) < 1e-4 * np.max(np.abs(got))
+    assert np.max(np.abs(got[:, shooting.nb:shooting.nb * 2])) > 1.0      # the intervals' own sensitivities
+    inside = np.zeros(got.shape, dtype=bool)
+    rows, cols = shooting.sparsity.get_triplet()
+    inside[rows, cols] = True
+    assert not np.any(got[~inside]) and not np.any(differenced[~inside])
+    if free_dt:
+        assert np.max(np.abs(got[:, -2])) > 1e-3
+
+
+class _SpinningPendulum:
+    """A small stand-in for optimize.Dynamics that CasADi can differentiate twice: a pendulum (x) whose wheel
+    (gamma1) it is coupled to through a smooth slip law; torques p[0] on the wheel, p[1] on the pendulum."""
+
+    class model:
+        q_names = ["x", "gamma1"]
+
+    kept = [0, 2, 3]                                  # x, dx, dgamma1: the wheel's angle left out
+
+    def reduced(self, x):
+        return np.asarray(x)[self.kept]
+
+    def integrator(self, tol, dt=None):
+        import casadi as ca
+        r, p = ca.SX.sym("r", 3), ca.SX.sym("p", 4 if dt is not None else 5)
+        length = dt if dt is not None else p[4]
+        slip = ca.tanh(r[2] - r[1])
+        ode = ca.vertcat(r[1], -9.81 * ca.sin(r[0]) + 2.0 * slip * (1 + 0.3 * ca.cos(r[0])) + p[1],
+                         p[0] - 3.0 * slip - 0.2 * r[2] * r[1])
+        return ca.integrator("F", "cvodes", {"x": r, "p": p, "ode": length * ode}, 0, 1.0,
+                             {"abstol": tol, "reltol": tol})
+
+
+def test_the_carried_spin_rates_curvature_is_the_lagrangians_own():
+    """CarriedSpinShooting.constraint_curvature (the second-order adjoint of the interval chain: each interval's
+    multiplier with the later intervals' pulled back through the carried rates) against CasADi's own second
+    derivatives of lam . g(w), g formed symbolically through the same integrator (a stand-in it can differentiate
+    twice: _SpinningPendulum), 4 intervals, a random point and random multipliers."""
+    import casadi as ca
+    from cedra.run.shooting import CarriedSpinShooting
+    dyn = _SpinningPendulum()
+    n, dt = 4, 0.3
+    x0 = np.array([0.3, 0.0, 0.1, 2.0])
+    shooting = CarriedSpinShooting(dyn, x0, n, dt, 1e-12, 0.2, False, False)
+    assert (shooting.nb, shooting.ns) == (2, 1)
+    rng = np.random.default_rng(2)
+    w = np.concatenate([np.r_[0.3, 0.1], rng.uniform(-1, 1, 2 * n), rng.uniform(-2, 2, 4 * n), [dt, 0.0]])
+    lam = rng.uniform(-1, 1, shooting.ng)
+    # the same constraints, formed symbolically: the node states and the carried spin rate
+    F = dyn.integrator(1e-12, dt)
+    ws = ca.MX.sym("w", shooting.nw)
+    X = ca.reshape(ws[:shooting.u_at], 2, n + 1)
+    U = ca.reshape(ws[shooting.u_at:shooting.u_at + 4 * n], 4, n)
+    spin, g = ca.MX(x0[3]), []
+    for k in range(n):
+        end = F(x0=ca.vertcat(X[:, k], spin), p=U[:, k])["xf"]
+        g.append(end[:2] - X[:, k + 1])
+        spin = end[2]
+    g = ca.vertcat(*g, X[0, n] - 0.2)
+    assert np.allclose(np.array(ca.Function("g", [ws], [g])(w)).ravel(), shooting.g(w), atol=1e-9)
+    exact = np.array(ca.Function("h", [ws], [ca.hessian(ca.dot(ca.DM(lam), g), ws)[0]])(w))
+    got = shooting.constraint_curvature(w, lam)
+    assert np.max(np.abs(got - exact)) < 1e-4 * np.max(np.abs(exact)), np.max(np.abs(got - exact))
+    # the carried rate couples node 1 with the torques of interval 0 (separate blocks in the lifted transcription)
+    coupling = exact[np.ix_(range(2, 4), range(shooting.u_at, shooting.u_at + 4))]
+    assert np.max(np.abs(coupling)) > 1e-2 * np.max(np.abs(exact))
 
 
 def test_smoothed_contact_law_tends_to_the_fmus():

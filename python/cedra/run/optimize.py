@@ -24,7 +24,10 @@ torques) without the shooting constraints' curvature, a generalized Gauss-Newton
 sensitivities (ShootingHessian: Newton's method, at ten times an iteration's cost or more); "limited-memory" is
 IPOPT's quasi-Newton approximation. CVODES' sensitivity Newton iteration uses the first-order Jacobian. The
 wheels' spin angles enter no force, so the shooting state leaves them out (14 of the model's 18 states), and with
-a fixed horizon the interval's length is a constant, not a parameter the sensitivities are taken for.
+a fixed horizon the interval's length is a constant, not a parameter the sensitivities are taken for. The wheels'
+spin rates are by default carried from interval to interval rather than node decisions (`solver.spin_rates`,
+cedra.run.shooting: a landing wheel's rate is too steep a function of its touchdown for the linearized steps);
+"differenced" then forms the chain's second-order adjoint (energy objective).
 
 Initial guess (`guess`): a drive controller's run from the same start, its states at the grid nodes and its mean
 torques per interval. The equal-torque and inverse-kinematics controllers sample every 0.01 s, so their torques
@@ -86,6 +89,8 @@ Problem files (TOML), checked before anything runs, each error naming the file, 
                                     # one weight per smoothing stage)
     smoothing = [0.0]               # m: the contact law's smoothing width of each continuation stage, strictly
                                     # decreasing, each in [0, 0.01]; 0 is the FMU's law
+    spin_rates = "carried"          # the wheels' spin rates: carried through the intervals (the shooting
+                                    # nodes hold the body and joint states) | nodes: decisions at every node
 """
 from __future__ import annotations
 
@@ -101,6 +106,7 @@ import numpy as np
 
 from cedra.models.scene import SceneError, choice, fail, load_shipped, number, read_toml, shipped
 from cedra.rover.parameters import DEFAULTS
+from cedra.run.shooting import CarriedSpinHessian, CarriedSpinShooting
 
 OBJECTIVES = ("energy", "peak_friction", "time")
 GUESSES = {"equal_torques": 0, "inverse_kinematics": 1, "traction_control": 2}     # ctrl.mode of the drive controller
@@ -113,9 +119,10 @@ ARRIVAL_TOL = 1e-4           # m: the goal counts as reached this close (the opt
 FN_MIN = 1.0                 # N: a wheel counts in the friction ratio while it carries more than this
 TOP_KEYS = {"name", "scene", "objective", "margin", "interval", "horizon", "torque_max", "start_x", "guess", "speed",
             "regularization", "inputs", "solver"}
-SOLVER_KEYS = {"max_iter", "tol", "integrator_tol", "threads", "hessian", "proximal", "smoothing"}
+SOLVER_KEYS = {"max_iter", "tol", "integrator_tol", "threads", "hessian", "proximal", "smoothing", "spin_rates"}
 SMOOTHING_MAX = 0.01         # m: the largest smoothing width of the contact law a problem may give
 HESSIANS = ("objective", "limited-memory", "differenced")
+SPIN_RATES = ("carried", "nodes")     # the wheels' spin rates: carried through the intervals | node decisions
 WARM_DUALS = True            # a continuation stage starts from the previous one's multipliers too
 
 
@@ -144,6 +151,7 @@ class Problem:
     hessian: tuple = ("objective",)
     proximal: tuple = (0.0,)
     smoothing: tuple = (0.0,)
+    spin_rates: str = "carried"
     path: str = ""
 
 
@@ -218,6 +226,8 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
             problem.proximal = tuple(_number(path, k, v, 0.0, 1e3) for v in _stage_values(value))
         elif key == "smoothing":
             problem.smoothing = _widths(path, k, value)
+        elif key == "spin_rates":
+            problem.spin_rates = _choice(path, k, value, SPIN_RATES)
         elif key == "threads":
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:
                 _fail(path, k, f"expected an integer in 1..64, got {value!r}")
@@ -230,6 +240,9 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
                   f"({len(problem.smoothing)}), got {len(values)}")
     if "differenced" in problem.hessian and objective == "time":
         _fail(path, "solver.hessian", "'differenced' needs a fixed horizon (objective energy or peak_friction)")
+    if "differenced" in problem.hessian and problem.spin_rates == "carried" and objective != "energy":
+        _fail(path, "solver.hessian", "'differenced' with the spin rates carried is formed for the energy "
+              "objective (with peak_friction: solver.spin_rates = \"nodes\")")
     return problem
 
 
@@ -512,40 +525,61 @@ def initial_guess(names, rows, n: int, dt: float):
 
 
 def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float, goal_x: float,
-          log: bool = False, warm: dict | None = None, proximal: float = 0.0, hessian: str = "objective") -> dict:
-    """Multiple shooting: decisions X_0..X_N (shooting states, X_0 fixed at x0), U_0..U_{N-1} (four torques
-    each), the interval length dt (free for the time objective), the epigraph s (peak_friction), on the equations
-    at the contact law's smoothing width dyn.width. The intervals are integrated on `problem.threads` threads.
+          log: bool = False, warm: dict | None = None, proximal: float = 0.0, hessian: str = "objective",
+          spin_rates: str = "carried") -> dict:
+    """Multiple shooting: decisions X_0..X_N (shooting states, X_0 fixed at x0; with spin_rates "carried" the body
+    and joint states only, cedra.run.shooting), U_0..U_{N-1} (four torques each), the interval length dt (free for
+    the time objective), the epigraph s (peak_friction), on the equations at the contact law's smoothing width
+    dyn.width. The intervals are integrated on `problem.threads` threads (carried: their Jacobians).
     warm: a previous solve's result (a continuation stage), its decisions and multipliers the starting point."""
-    n, nx = U_guess.shape[0], dyn.nr
-    X = ca.MX.sym("X", nx, n + 1)
-    U = ca.MX.sym("U", 4, n)
-    dt = ca.MX.sym("dt")
-    s = ca.MX.sym("s")
+    n = U_guess.shape[0]
     free_dt = problem.objective == "time"
-    F = dyn.integrator(problem.integrator_tol, dt=None if free_dt else dt_guess)
-    F = F.map(n, "thread", problem.threads) if problem.threads > 1 else F.map(n, "serial")
-    xf = F(x0=X[:, :n], p=ca.vertcat(U, ca.repmat(dt, 1, n)) if free_dt else U)["xf"]
+    peak = problem.objective == "peak_friction"
+    lo, hi = (dyn.reduced(b) for b in state_bounds(dyn))
+    X_start = dyn.reduced(X_guess)
+    x0r = dyn.reduced(x0)
+    extra = {}
+    if spin_rates == "carried":
+        shooting = CarriedSpinShooting(dyn, x0, n, dt_guess, problem.integrator_tol, goal_x, free_dt, peak,
+                                       problem.threads)
+        keep = shooting.body
+        w = ca.MX.sym("w", shooting.nw)
+        U = ca.reshape(w[shooting.u_at:shooting.u_at + 4 * n], 4, n)
+        dt, s = w[-2], w[-1]
+        g = [shooting.constraint(w)]
+        lbg = [np.zeros(shooting.nb * n), [0.0]] + ([np.full(8 * n, -np.inf)] if peak else [])
+        ubg = [np.zeros(shooting.nb * n), [np.inf]] + ([np.zeros(8 * n)] if peak else [])
+        extra = {"jac_g": shooting.jac_g()}
+    else:
+        keep = list(range(dyn.nr))
+        X = ca.MX.sym("X", dyn.nr, n + 1)
+        U = ca.MX.sym("U", 4, n)
+        dt = ca.MX.sym("dt")
+        s = ca.MX.sym("s")
+        F = dyn.integrator(problem.integrator_tol, dt=None if free_dt else dt_guess)
+        F = F.map(n, "thread", problem.threads) if problem.threads > 1 else F.map(n, "serial")
+        xf = F(x0=X[:, :n], p=ca.vertcat(U, ca.repmat(dt, 1, n)) if free_dt else U)["xf"]
+        g = [ca.vec(xf - X[:, 1:]), X[0, n] - goal_x]
+        lbg = [np.zeros(dyn.nr * n), [0.0]]
+        ubg = [np.zeros(dyn.nr * n), [np.inf]]
+        if peak:
+            fn, fx = _node_forces(dyn, X[:, 1:])
+            g += [ca.vec(fx - s * fn), ca.vec(-fx - s * fn)]
+            lbg += [np.full(2 * 4 * n, -np.inf)]
+            ubg += [np.zeros(2 * 4 * n)]
+        w = ca.vertcat(ca.vec(X), ca.vec(U), dt, s)
+    nx = len(keep)
     weights = ca.DM([2, 2, 1, 1])              # tau[1] = tau[3], tau[2] = tau[4]: each pair's torque counts twice
     energy = dt * ca.sum2(ca.mtimes(weights.T, U ** 2))
-    g = [ca.vec(xf - X[:, 1:]), X[0, n] - goal_x]
-    lbg = [np.zeros(nx * n), [0.0]]
-    ubg = [np.zeros(nx * n), [np.inf]]
     if problem.objective == "energy":
         J = energy
     elif problem.objective == "time":
         J = n * dt + problem.regularization * energy
     else:
-        fn, fx = _node_forces(dyn, X[:, 1:])
-        g += [ca.vec(fx - s * fn), ca.vec(-fx - s * fn)]
-        lbg += [np.full(2 * 4 * n, -np.inf)]
-        ubg += [np.zeros(2 * 4 * n)]
         J = s + problem.regularization * energy
-    w = ca.vertcat(ca.vec(X), ca.vec(U), dt, s)
-    lo, hi = (dyn.reduced(b) for b in state_bounds(dyn))
-    x_lo = np.tile(lo[:, None], (1, n + 1))
-    x_hi = np.tile(hi[:, None], (1, n + 1))
-    x_lo[:, 0] = x_hi[:, 0] = dyn.reduced(x0)
+    x_lo = np.tile(lo[keep, None], (1, n + 1))
+    x_hi = np.tile(hi[keep, None], (1, n + 1))
+    x_lo[:, 0] = x_hi[:, 0] = x0r[keep]
     u_bound = np.full((4, n), problem.torque_max)
     if problem.objective == "time":
         dt_lo, dt_hi = 0.25 * dt_guess, 2.0 * dt_guess
@@ -553,9 +587,9 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
         dt_lo = dt_hi = dt_guess
     lbw = np.concatenate([x_lo.ravel(order="F"), -u_bound.ravel(order="F"), [dt_lo], [0.0]])
     ubw = np.concatenate([x_hi.ravel(order="F"), u_bound.ravel(order="F"), [dt_hi],
-                          [np.inf if problem.objective == "peak_friction" else 0.0]])
-    s0 = 1.0 if problem.objective == "peak_friction" else 0.0
-    w0 = np.concatenate([dyn.reduced(X_guess).ravel(order="F"), np.clip(U_guess.T, -problem.torque_max,
+                          [np.inf if peak else 0.0]])
+    s0 = 1.0 if peak else 0.0
+    w0 = np.concatenate([X_start[keep].ravel(order="F"), np.clip(U_guess.T, -problem.torque_max,
                                                           problem.torque_max).ravel(order="F"), [dt_guess], [s0]])
     warm_opts = {}
     if warm is not None:
@@ -566,6 +600,8 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
     nlp = {"x": w, "f": J, "g": ca.vertcat(*g)}
     if hessian == "objective":
         hess = {"hess_lag": _objective_hessian(w, J, nlp["g"].numel(), nx * (n + 1), proximal)}
+    elif hessian == "differenced" and spin_rates == "carried":
+        hess = {"hess_lag": CarriedSpinHessian(shooting, _objective_part(w, J, nx * (n + 1), proximal))}
     elif hessian == "differenced":
         hess = {"hess_lag": ShootingHessian(w, J, nlp["g"].numel(), n, _interval_jacobian(
             dyn.integrator(problem.integrator_tol, dt=dt_guess), nx, 4), problem.threads, proximal)}
@@ -581,7 +617,7 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
                       "acceptable_constr_viol_tol": 1e-5,
                       # the filter accepts no trial point whose constraint violation (1-norm) exceeds the start's
                       # (at least 1): the Gauss-Newton steps otherwise trade a large violation for objective
-                      "theta_max_fact": 1.0, **warm_opts}, "print_time": False, **hess}
+                      "theta_max_fact": 1.0, **warm_opts}, "print_time": False, **hess, **extra}
     solver = ca.nlpsol("climb", "ipopt", nlp, opts)
     t0 = time.perf_counter()
     lbg, ubg = np.concatenate(lbg), np.concatenate(ubg)
@@ -590,7 +626,7 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
     wall = time.perf_counter() - t0
     stats = solver.stats()
     wv = np.array(sol["x"]).ravel()
-    Xo = wv[:nx * (n + 1)].reshape((nx, n + 1), order="F")
+    Xo = shooting.nodes(wv) if spin_rates == "carried" else wv[:nx * (n + 1)].reshape((nx, n + 1), order="F")
     Uo = wv[nx * (n + 1):nx * (n + 1) + 4 * n].reshape((4, n), order="F").T
     objective, violation = _evaluate(nlp, wv, lbg, ubg)
     return dict(X=Xo, U=Uo, dt=float(wv[-2]), s=float(wv[-1]), objective=objective, wall=wall,
@@ -779,7 +815,7 @@ def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
             say(f"stage {len(stages) + 1}/{len(problem.smoothing)}: contact smoothing width {width:g} m")
         proximal, hessian = _at_stage(problem.proximal, len(stages)), _at_stage(problem.hessian, len(stages))
         result = solve(problem, dyn, x0, X_guess, U_guess, dt, goal_x, log=not quiet, warm=result, proximal=proximal,
-                       hessian=hessian)
+                       hessian=hessian, spin_rates=problem.spin_rates)
         stages.append({k: result[k] for k in ("width", "status", "iterations", "wall", "objective", "violation",
                                               "success")} | {"proximal": proximal, "hessian": hessian})
         say(f"IPOPT: {result['status']} after {result['iterations']} iterations, {result['wall']:.1f} s, "
