@@ -52,7 +52,8 @@ GOOD = 'scene = "bump2d"\nobjective = "energy"\nmargin = 0.4\ninterval = 0.1\n'
      "solver.hessian", "one Hessian per smoothing stage"),
     (GOOD.replace('"energy"', '"time"') + "[solver]\nhessian = \"differenced\"\n", "solver.hessian",
      "needs a fixed horizon"),
-    (GOOD.replace('"energy"', '"peak_friction"') + "[solver]\nhessian = \"differenced\"\n", "solver.hessian",
+    (GOOD.replace('"energy"', '"peak_friction"') + "[solver]\nhessian = \"differenced\"\nspin_rates = \"carried\"\n",
+     "solver.hessian",
      "formed for the energy objective"),
     (GOOD + "[solver]\nspin_rates = \"lifted\"\n", "solver.spin_rates", "must be one of"),
 ])
@@ -312,12 +313,14 @@ def test_smoothed_model_forms_no_fmu():
         CedraModel(load_shipped("bump2d").options, smooth_contact=True).spec("bump2d")
 
 
-def test_short_solve_converges_and_replays(tmp_path):
+@pytest.mark.parametrize("spin_rates", ["nodes", "carried"])
+def test_short_solve_converges_and_replays(tmp_path, spin_rates):
     """Toward the bump's foot: 0.4 s, 2 intervals of 0.2 s (the shipped short problem's first half, a test of
-    seconds), from the IK controller's run. The replay and the comparison are checked first, convergence last."""
+    seconds), from the IK controller's run, both transcriptions. The replay and the comparison are checked first,
+    convergence last."""
     path = tmp_path / "short.toml"
     path.write_text('scene = "bump2d"\nobjective = "energy"\nmargin = -0.55\ninterval = 0.2\nstart_x = 0.4\n'
-                    'horizon = 0.4\n[solver]\nmax_iter = 60\n')
+                    f'horizon = 0.4\n[solver]\nmax_iter = 60\nspin_rates = "{spin_rates}"\n')
     s = optimize.run(optimize.load(path), tmp_path / "out", BUILD, quiet=True)
     assert s["intervals"] == 2
     assert s["replay_ok"]

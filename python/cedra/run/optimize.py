@@ -25,9 +25,9 @@ sensitivities (ShootingHessian: Newton's method, at ten times an iteration's cos
 IPOPT's quasi-Newton approximation. CVODES' sensitivity Newton iteration uses the first-order Jacobian. The
 wheels' spin angles enter no force, so the shooting state leaves them out (14 of the model's 18 states), and with
 a fixed horizon the interval's length is a constant, not a parameter the sensitivities are taken for. The wheels'
-spin rates are by default carried from interval to interval rather than node decisions (`solver.spin_rates`,
-cedra.run.shooting: a landing wheel's rate is too steep a function of its touchdown for the linearized steps);
-"differenced" then forms the chain's second-order adjoint (energy objective).
+spin rates are node decisions by default; `solver.spin_rates = "carried"` carries them from interval to interval
+instead (cedra.run.shooting: a landing wheel's rate is a steep function of its touchdown), and "differenced" then
+forms the chain's second-order adjoint (energy objective).
 
 Initial guess (`guess`): a drive controller's run from the same start, its states at the grid nodes and its mean
 torques per interval. The equal-torque and inverse-kinematics controllers sample every 0.01 s, so their torques
@@ -89,8 +89,8 @@ Problem files (TOML), checked before anything runs, each error naming the file, 
                                     # one weight per smoothing stage)
     smoothing = [0.0]               # m: the contact law's smoothing width of each continuation stage, strictly
                                     # decreasing, each in [0, 0.01]; 0 is the FMU's law
-    spin_rates = "carried"          # the wheels' spin rates: carried through the intervals (the shooting
-                                    # nodes hold the body and joint states) | nodes: decisions at every node
+    spin_rates = "nodes"            # the wheels' spin rates: decisions at every node | carried: through the
+                                    # intervals (the shooting nodes hold the body and joint states)
 """
 from __future__ import annotations
 
@@ -151,7 +151,7 @@ class Problem:
     hessian: tuple = ("objective",)
     proximal: tuple = (0.0,)
     smoothing: tuple = (0.0,)
-    spin_rates: str = "carried"
+    spin_rates: str = "nodes"
     path: str = ""
 
 
@@ -526,7 +526,7 @@ def initial_guess(names, rows, n: int, dt: float):
 
 def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float, goal_x: float,
           log: bool = False, warm: dict | None = None, proximal: float = 0.0, hessian: str = "objective",
-          spin_rates: str = "carried") -> dict:
+          spin_rates: str = "nodes") -> dict:
     """Multiple shooting: decisions X_0..X_N (shooting states, X_0 fixed at x0; with spin_rates "carried" the body
     and joint states only, cedra.run.shooting), U_0..U_{N-1} (four torques each), the interval length dt (free for
     the time objective), the epigraph s (peak_friction), on the equations at the contact law's smoothing width
