@@ -538,36 +538,14 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
     lo, hi = (dyn.reduced(b) for b in state_bounds(dyn))
     X_start = dyn.reduced(X_guess)
     x0r = dyn.reduced(x0)
-    extra = {}
     if spin_rates == "carried":
         shooting = CarriedSpinShooting(dyn, x0, n, dt_guess, problem.integrator_tol, goal_x, free_dt, peak,
                                        problem.threads)
-        keep = shooting.body
-        w = ca.MX.sym("w", shooting.nw)
-        U = ca.reshape(w[shooting.u_at:shooting.u_at + 4 * n], 4, n)
-        dt, s = w[-2], w[-1]
-        g = [shooting.constraint(w)]
-        lbg = [np.zeros(shooting.nb * n), [0.0]] + ([np.full(8 * n, -np.inf)] if peak else [])
-        ubg = [np.zeros(shooting.nb * n), [np.inf]] + ([np.zeros(8 * n)] if peak else [])
+        keep, (w, U, dt, s, g, lbg, ubg) = shooting.body, _carried_constraints(shooting, n, peak)
         extra = {"jac_g": shooting.jac_g()}
     else:
-        keep = list(range(dyn.nr))
-        X = ca.MX.sym("X", dyn.nr, n + 1)
-        U = ca.MX.sym("U", 4, n)
-        dt = ca.MX.sym("dt")
-        s = ca.MX.sym("s")
-        F = dyn.integrator(problem.integrator_tol, dt=None if free_dt else dt_guess)
-        F = F.map(n, "thread", problem.threads) if problem.threads > 1 else F.map(n, "serial")
-        xf = F(x0=X[:, :n], p=ca.vertcat(U, ca.repmat(dt, 1, n)) if free_dt else U)["xf"]
-        g = [ca.vec(xf - X[:, 1:]), X[0, n] - goal_x]
-        lbg = [np.zeros(dyn.nr * n), [0.0]]
-        ubg = [np.zeros(dyn.nr * n), [np.inf]]
-        if peak:
-            fn, fx = _node_forces(dyn, X[:, 1:])
-            g += [ca.vec(fx - s * fn), ca.vec(-fx - s * fn)]
-            lbg += [np.full(2 * 4 * n, -np.inf)]
-            ubg += [np.zeros(2 * 4 * n)]
-        w = ca.vertcat(ca.vec(X), ca.vec(U), dt, s)
+        keep, (w, U, dt, s, g, lbg, ubg) = list(range(dyn.nr)), _lifted_constraints(problem, dyn, n, dt_guess, goal_x)
+        extra = {}
     nx = len(keep)
     weights = ca.DM([2, 2, 1, 1])              # tau[1] = tau[3], tau[2] = tau[4]: each pair's torque counts twice
     energy = dt * ca.sum2(ca.mtimes(weights.T, U ** 2))
@@ -633,6 +611,37 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
                 iterations=int(stats["iter_count"]), status=stats["return_status"], success=bool(stats["success"]),
                 violation=violation, width=dyn.width, w=wv, lam_x=np.array(sol["lam_x"]).ravel(),
                 lam_g=np.array(sol["lam_g"]).ravel())
+
+
+def _lifted_constraints(problem: Problem, dyn: Dynamics, n: int, dt_guess: float, goal_x: float):
+    """The decisions w = [vec(X); vec(U); dt; s] with every shooting state a node decision, and (w, U, dt, s,
+    constraints, lower bounds, upper bounds): the shooting defects, the goal, peak_friction's node forces."""
+    free_dt = problem.objective == "time"
+    X = ca.MX.sym("X", dyn.nr, n + 1)
+    U = ca.MX.sym("U", 4, n)
+    dt = ca.MX.sym("dt")
+    s = ca.MX.sym("s")
+    F = dyn.integrator(problem.integrator_tol, dt=None if free_dt else dt_guess)
+    F = F.map(n, "thread", problem.threads) if problem.threads > 1 else F.map(n, "serial")
+    xf = F(x0=X[:, :n], p=ca.vertcat(U, ca.repmat(dt, 1, n)) if free_dt else U)["xf"]
+    g = [ca.vec(xf - X[:, 1:]), X[0, n] - goal_x]
+    lbg = [np.zeros(dyn.nr * n), [0.0]]
+    ubg = [np.zeros(dyn.nr * n), [np.inf]]
+    if problem.objective == "peak_friction":
+        fn, fx = _node_forces(dyn, X[:, 1:])
+        g += [ca.vec(fx - s * fn), ca.vec(-fx - s * fn)]
+        lbg += [np.full(2 * 4 * n, -np.inf)]
+        ubg += [np.zeros(2 * 4 * n)]
+    return ca.vertcat(ca.vec(X), ca.vec(U), dt, s), U, dt, s, g, lbg, ubg
+
+
+def _carried_constraints(shooting: CarriedSpinShooting, n: int, peak: bool):
+    """The same for the carried spin rates (cedra.run.shooting): the nodes hold the body and joint states."""
+    w = ca.MX.sym("w", shooting.nw)
+    U = ca.reshape(w[shooting.u_at:shooting.u_at + 4 * n], 4, n)
+    lbg = [np.zeros(shooting.nb * n), [0.0]] + ([np.full(8 * n, -np.inf)] if peak else [])
+    ubg = [np.zeros(shooting.nb * n), [np.inf]] + ([np.zeros(8 * n)] if peak else [])
+    return w, U, w[-2], w[-1], [shooting.constraint(w)], lbg, ubg
 
 
 def _evaluate(nlp: dict, wv: np.ndarray, lbg: np.ndarray, ubg: np.ndarray) -> tuple[float, float]:

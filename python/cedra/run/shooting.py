@@ -13,7 +13,7 @@ milliseconds (the friction law's ~1e4 1/s), so the chained sensitivities die out
 single shooting in the rates is well conditioned; in the air a rate follows its torque (d omega = tau dt / J).
 Measured (docs/optimize.md): the short bump problem converges with it as with the lifted rates, to IPOPT's
 tolerance with "differenced"; on the whole bump the shipped stages reach far lower energies but keep larger
-body defects where the climb is unstable, and the torques' own path does not get over: not the default.
+defects in the joints' rates, and the torques' own path does not reach the goal: not the default.
 
 Decisions w = [vec(X) (nb x (n + 1), the body and joint states of every node, X_0 fixed at the start);
 vec(U) (4 x n); dt; s], the same order as the lifted transcription's. Constraints g = [the body defects (nb n);
@@ -245,8 +245,9 @@ class CarriedSpinShooting:
 
 
 class _Constraints(ca.Callback):
-    """w -> g. Its Jacobian (asked for when CasADi forms the Lagrangian's gradient, once a solve) is the chained
-    one; IPOPT's own Jacobian evaluations go through _ConstraintJacobian."""
+    """w -> g. CasADi needs a Jacobian of it to build the solver (it forms the Lagrangian's gradient; without one
+    that fails), the chained one; IPOPT's own Jacobian evaluations go through _ConstraintJacobian (a solve of the
+    short problem evaluates this one never)."""
 
     def __init__(self, shooting: CarriedSpinShooting):
         ca.Callback.__init__(self)
