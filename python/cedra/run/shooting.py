@@ -42,7 +42,6 @@ class CarriedSpinShooting:
         self.u_at = self.nb * (n + 1)                     # where the torques start in w
         self.nw = self.u_at + self.nu * n + 2             # ... then dt, s
         self.ng = self.nb * n + 1 + (8 * n if peak else 0)
-        self.dt_fixed = dt
         self.F = dyn.integrator(tol, dt=None if free_dt else dt)
         npar = self.nu + (1 if free_dt else 0)
         x, p = ca.MX.sym("x", self.nr), ca.MX.sym("p", npar)
@@ -180,8 +179,8 @@ class CarriedSpinShooting:
     def _chain(self, w):
         """Every interval's Jacobian J_k (nr x (nr + npar)) and the derivative of its inputs z_k = (start state,
         torques) in w, Z_k ((nr + nu) x nw); fixed horizon."""
-        X, U, dt, s = self.split(w)
-        starts, ends = self.starts(w)
+        _, U, _, _ = self.split(w)
+        starts, _ = self.starts(w)
         J = np.array(self.jacobians(starts, U))
         S = np.zeros((self.ns, self.nw))
         Js, Zs = [], []
