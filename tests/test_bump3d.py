@@ -29,7 +29,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from cedra.models.plant import CedraModel, ModelOptions
+from cedra.models.plant import CedraModel
 from cedra.rover.parameters import DEFAULTS
 from cedra.models.scene import load_shipped
 from cedra.run.simulate import run_bump

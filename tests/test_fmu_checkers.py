@@ -16,7 +16,6 @@ results must agree to 1e-12 (measured: bit-identical); with step 0.01 s FMPy's h
 from __future__ import annotations
 
 import os
-import shutil
 import zipfile
 from pathlib import Path
 

@@ -3,7 +3,6 @@ reader's errors, the model on a heightmap of a plane against the analytic slope,
 from resources/ (per instance, loud when the rover leaves the grid)."""
 from __future__ import annotations
 
-import shutil
 import sys
 from pathlib import Path
 

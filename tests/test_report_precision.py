@@ -89,7 +89,7 @@ def test_peers_on_the_same_equations(setup):
 
 
 def test_report_writes_markdown(tmp_path):
-    from cedra.reports.common import Run, Schedule
+    from cedra.reports.common import Run
     res = P.SceneResult("toy", 1.0, Run("cvodes", "tol", np.zeros(1), np.zeros((1, 1)), 1.0, 10, 20))
     res.rows = [dict(method=m, setting="tol 1e-6", comm=0.01, wall=w, steps=1, evals=2, ok=True, status="ok",
                      message="", pos_abs=e, pos_rel=e, fn_abs=e, fn_rel=e)

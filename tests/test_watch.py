@@ -88,7 +88,7 @@ def test_ground_forces_carry_the_weight_at_rest(run, request):
 def test_terrain_is_the_fmus():
     t = watch.TerrainMap(BUILD / "bump2d.fmu")
     X = np.linspace(-1, 3, 41)
-    h, w, x0 = DEFAULTS.get("terrain_h", 0.14625), 0.14625, 1.0
+    w, x0 = 0.14625, 1.0
     assert t.kind == "bump"
     assert np.allclose(t.height(X, 0.3), 0.14625 * np.exp(-((X - x0) / w) ** 2), atol=1e-12)
     s = watch.TerrainMap(BUILD / "slope3d.fmu")

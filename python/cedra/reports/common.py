@@ -137,7 +137,6 @@ class Problem:
         self.xdot_expr = xdot
         self.rhs = ca.Function("rhs", [x, self.p_sym], [xdot])
         self.jac = ca.Function("rhs_jac", [x, self.p_sym], [ca.jacobian(xdot, x)])
-        z = ca.MX.sym("z", 1)
         self.out_fn = self.fns["cedra_out"]
 
     # -------------------------------------------------------------- start state
@@ -286,7 +285,7 @@ def run_scipy(prob: Problem, sched: Schedule, x0, tgrid, method="Radau", rtol=1e
     atol = rtol if atol is None else atol
     X = [np.asarray(x0, float)]
     x = np.asarray(x0, float)
-    steps = evals = 0
+    evals = 0
     ok, msg = True, ""
     rhs, jac = prob.rhs, prob.jac
     wall = time.perf_counter()

@@ -9,7 +9,6 @@ writes <out>/precision.md, <out>/precision_<scene>.png and <out>/precision_<scen
 from __future__ import annotations
 
 import csv
-import math
 import sys
 import time
 from dataclasses import dataclass, field

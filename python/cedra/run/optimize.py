@@ -106,6 +106,7 @@ import numpy as np
 
 from cedra.models.scene import SceneError, choice, fail, load_shipped, number, read_toml, shipped
 from cedra.rover.parameters import DEFAULTS
+from cedra.run.oracle import NumpyFunction, hess_lag_io
 from cedra.run.shooting import CarriedSpinHessian, CarriedSpinShooting
 
 OBJECTIVES = ("energy", "peak_friction", "time")
@@ -686,7 +687,7 @@ def _interval_jacobian(F: ca.Function, nx: int, nu: int) -> ca.Function:
     return ca.Function("interval_jacobian", [x, p], [ca.jacobian(F(x0=x, p=p)["xf"], ca.vertcat(x, p))])
 
 
-class ShootingHessian(ca.Callback):
+class ShootingHessian(NumpyFunction):
     """The Hessian of the Lagrangian with the shooting constraints' curvature (solver.hessian = "differenced"):
     lam_f times the objective's own with the proximal term (_objective_part, as the Gauss-Newton Hessian) plus,
     for every interval k, the second derivative of lam_k . F(X_k, U_k) in the interval's own decisions
@@ -702,7 +703,6 @@ class ShootingHessian(ca.Callback):
     # about 1e-5 relative (docs/optimize.md), so the difference carries about that over the step, 1e-5 x |H|
 
     def __init__(self, w, J, n_g: int, n: int, jacobian: ca.Function, threads: int = 1, proximal: float = 0.0):
-        ca.Callback.__init__(self)
         self.nx, self.nu = jacobian.size1_out(0), jacobian.size2_out(0) - jacobian.size1_out(0)
         self.nw, self.n_g, self.n = w.numel(), n_g, n
         nz, nx = self.nx + self.nu, self.nx
@@ -717,29 +717,10 @@ class ShootingHessian(ca.Callback):
         cols = np.concatenate([np.tile(idx, nz) for idx in self.blocks] + [np.arange(self.nw), own.get_col()])
         upper = rows <= cols
         self.sparsity = ca.Sparsity.triplet(self.nw, self.nw, rows[upper].tolist(), cols[upper].tolist())
-        self.construct("nlp_hess_l", {})
+        super().__init__("nlp_hess_l", *hess_lag_io(self.nw, n_g, self.sparsity))
 
-    def get_n_in(self):
-        return 4
-
-    def get_n_out(self):
-        return 1
-
-    def get_name_in(self, i):
-        return ("x", "p", "lam_f", "lam_g")[i]
-
-    def get_name_out(self, i):
-        return "triu_hess_gamma_x_x"
-
-    def get_sparsity_in(self, i):
-        return (ca.Sparsity.dense(self.nw), ca.Sparsity(0, 1), ca.Sparsity.dense(1), ca.Sparsity.dense(self.n_g))[i]
-
-    def get_sparsity_out(self, i):
-        return self.sparsity
-
-    def eval(self, args):
-        w, lam_f, lam_g = (np.array(args[k], dtype=float).ravel() for k in (0, 2, 3))
-        return [ca.project(ca.triu(ca.sparsify(ca.DM(self.matrix(w, lam_f[0], lam_g)))), self.sparsity)]
+    def evaluate(self, w, p, lam_f, lam_g):
+        return [np.triu(self.matrix(w, lam_f[0], lam_g))]
 
     def matrix(self, w: np.ndarray, lam_f: float, lam_g: np.ndarray) -> np.ndarray:
         """The full (symmetric) Hessian of lam_f f + lam_g . g at w, as a dense array."""

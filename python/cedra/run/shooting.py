@@ -25,6 +25,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from cedra.run.oracle import NumpyFunction, hess_lag_io
+
 
 class CarriedSpinShooting:
     """The constraints of the carried-spin transcription for n intervals of the Dynamics `dyn` (cedra.run.optimize)
@@ -243,126 +245,60 @@ class CarriedSpinShooting:
         return self.callbacks[1]
 
 
-class _Constraints(ca.Callback):
+class _Constraints(NumpyFunction):
     """w -> g. CasADi needs a Jacobian of it to build the solver (it forms the Lagrangian's gradient; without one
     that fails), the chained one; IPOPT's own Jacobian evaluations go through _ConstraintJacobian (a solve of the
     short problem evaluates this one never)."""
 
     def __init__(self, shooting: CarriedSpinShooting):
-        ca.Callback.__init__(self)
         self.shooting = shooting
-        self.construct("carried_spin_g", {})
+        super().__init__("carried_spin_g", [("w", ca.Sparsity.dense(shooting.nw))],
+                         [("g", ca.Sparsity.dense(shooting.ng))])
 
-    def get_n_in(self):
-        return 1
-
-    def get_n_out(self):
-        return 1
-
-    def get_sparsity_in(self, i):
-        return ca.Sparsity.dense(self.shooting.nw)
-
-    def get_sparsity_out(self, i):
-        return ca.Sparsity.dense(self.shooting.ng)
-
-    def eval(self, args):
-        return [ca.DM(self.shooting.g(np.array(args[0], dtype=float).ravel()))]
+    def evaluate(self, w):
+        return [self.shooting.g(w)]
 
     def has_jacobian(self):
         return True
 
     def get_jacobian(self, name, inames, onames, opts):
-        self._jacobian = _Jacobian(self.shooting, name)
+        self._jacobian = _Jacobian(self.shooting, name, inames, onames)   # kept: CasADi holds no Python reference
         return self._jacobian
 
 
-class _Jacobian(ca.Callback):
-    def __init__(self, shooting: CarriedSpinShooting, name: str):
-        ca.Callback.__init__(self)
+class _Jacobian(NumpyFunction):
+    """(w, g) -> d g / d w on the declared pattern: CasADi's form of a Jacobian takes the outputs as an input."""
+
+    def __init__(self, shooting: CarriedSpinShooting, name: str, inames: list[str], onames: list[str]):
         self.shooting = shooting
-        self.construct(name, {})
+        super().__init__(name, list(zip(inames, [ca.Sparsity.dense(shooting.nw), ca.Sparsity.dense(shooting.ng)])),
+                         [(onames[0], shooting.sparsity)])
 
-    def get_n_in(self):
-        return 2
-
-    def get_n_out(self):
-        return 1
-
-    def get_sparsity_in(self, i):
-        return ca.Sparsity.dense(self.shooting.nw) if i == 0 else ca.Sparsity.dense(self.shooting.ng)
-
-    def get_sparsity_out(self, i):
-        return self.shooting.sparsity
-
-    def eval(self, args):
-        G = self.shooting.jacobian(np.array(args[0], dtype=float).ravel())
-        return [ca.project(ca.sparsify(ca.DM(G)), self.shooting.sparsity)]
+    def evaluate(self, w, g):
+        return [self.shooting.jacobian(w)]
 
 
-class _ConstraintJacobian(ca.Callback):
+class _ConstraintJacobian(NumpyFunction):
     """nlpsol's jac_g: (x, p) -> (g, jac_g_x), one serial integration and one set of interval Jacobians."""
 
     def __init__(self, shooting: CarriedSpinShooting):
-        ca.Callback.__init__(self)
         self.shooting = shooting
-        self.construct("nlp_jac_g", {})
+        super().__init__("nlp_jac_g", [("x", ca.Sparsity.dense(shooting.nw)), ("p", ca.Sparsity(0, 1))],
+                         [("g", ca.Sparsity.dense(shooting.ng)), ("jac_g_x", shooting.sparsity)])
 
-    def get_n_in(self):
-        return 2
-
-    def get_n_out(self):
-        return 2
-
-    def get_name_in(self, i):
-        return ("x", "p")[i]
-
-    def get_name_out(self, i):
-        return ("g", "jac_g_x")[i]
-
-    def get_sparsity_in(self, i):
-        return ca.Sparsity.dense(self.shooting.nw) if i == 0 else ca.Sparsity(0, 1)
-
-    def get_sparsity_out(self, i):
-        return ca.Sparsity.dense(self.shooting.ng) if i == 0 else self.shooting.sparsity
-
-    def eval(self, args):
-        w = np.array(args[0], dtype=float).ravel()
-        return [ca.DM(self.shooting.g(w)), ca.project(ca.sparsify(ca.DM(self.shooting.jacobian(w))),
-                                                        self.shooting.sparsity)]
+    def evaluate(self, w, p):
+        return [self.shooting.g(w), self.shooting.jacobian(w)]
 
 
-class CarriedSpinHessian(ca.Callback):
+class CarriedSpinHessian(NumpyFunction):
     """nlpsol's hess_lag for the carried transcription with solver.hessian = "differenced": lam_f times the
     objective's own Hessian (with the proximal term: `objective_part`, w -> matrix) plus the constraints'
     curvature (CarriedSpinShooting.constraint_curvature), upper triangle, dense (the chain couples every interval
     with the ones before it)."""
 
     def __init__(self, shooting: CarriedSpinShooting, objective_part: ca.Function):
-        ca.Callback.__init__(self)
         self.shooting, self.objective_part = shooting, objective_part
-        self.pattern = ca.Sparsity.upper(shooting.nw)
-        self.construct("nlp_hess_l", {})
+        super().__init__("nlp_hess_l", *hess_lag_io(shooting.nw, shooting.ng, ca.Sparsity.upper(shooting.nw)))
 
-    def get_n_in(self):
-        return 4
-
-    def get_n_out(self):
-        return 1
-
-    def get_name_in(self, i):
-        return ("x", "p", "lam_f", "lam_g")[i]
-
-    def get_name_out(self, i):
-        return "triu_hess_gamma_x_x"
-
-    def get_sparsity_in(self, i):
-        return (ca.Sparsity.dense(self.shooting.nw), ca.Sparsity(0, 1), ca.Sparsity.dense(1),
-                ca.Sparsity.dense(self.shooting.ng))[i]
-
-    def get_sparsity_out(self, i):
-        return self.pattern
-
-    def eval(self, args):
-        w, lam_f, lam_g = (np.array(args[k], dtype=float).ravel() for k in (0, 2, 3))
-        H = lam_f[0] * np.array(self.objective_part(w)) + self.shooting.constraint_curvature(w, lam_g)
-        return [ca.project(ca.sparsify(ca.DM(np.triu(H))), self.pattern)]
+    def evaluate(self, w, p, lam_f, lam_g):
+        return [np.triu(lam_f[0] * np.array(self.objective_part(w)) + self.shooting.constraint_curvature(w, lam_g))]

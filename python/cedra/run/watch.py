@@ -31,7 +31,7 @@ import casadi as ca
 import numpy as np
 
 from cedra.rover.parameters import DEFAULTS
-from cedra.rover.skeleton import BOX_FACES, LINKS, NEEDED, POINTS, skeleton
+from cedra.rover.skeleton import BOX_FACES, LINKS, POINTS, skeleton
 
 FPS = 10                    # animation frames per simulated second (GIF frame times are in 10 ms: 100 ms)
 VIEW_FPS = 15               # samples per simulated second embedded in view.html (the page interpolates)
