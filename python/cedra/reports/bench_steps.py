@@ -112,7 +112,7 @@ def mujoco_row(scene, multiccd: bool, stop_time: float) -> Row:
 
 def fmu_row(scene, build, stop_time: float) -> Row | None:
     from pathlib import Path
-    from cedra.reports.bench import fmu_closed_loop
+    from cedra.reports.common import fmu_closed_loop
     path = Path(build) / f"{scene.name}.fmu"
     if not path.exists():
         return None

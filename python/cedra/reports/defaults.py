@@ -17,7 +17,7 @@ tolerance unless --tol) instead of the scene's defaults: what another setting wo
 writes <out>/defaults.md and prints the table. Criterion: peak normal forces within 1e-3 relative.
 
 --choose: each (compliant, adaptive) scene at every setting of CANDIDATES against one tight run, and the cheapest
-(CPU of the benchmark's closed loop, `cedra.reports.bench.fmu_closed_loop`, best of three runs) that keeps the
+(CPU of the benchmark's closed loop, `cedra.reports.common.fmu_closed_loop`, best of three runs) that keeps the
 guarantee: the peak AND every wheel's normal force at every communication point within 1e-3 of the tight run's
 peak (the whole history, not only the peak, so that a user's forces and not only the largest are converged);
 settings within 10 % of the cheapest one's CPU count as as cheap and the tightest of them is chosen. Where no candidate keeps it, the scene keeps its own setting. Writes
@@ -153,7 +153,8 @@ def choosable(name: str) -> bool:
 def choose(name: str, build="build", log=print) -> tuple[list[Row], Row | None]:
     """Every candidate setting of a scene against one tight run; (rows, the cheapest that keeps the guarantee or
     None)."""
-    from cedra.reports.bench import fmu_closed_loop, solver_setting
+    from cedra.reports.bench import solver_setting
+    from cedra.reports.common import fmu_closed_loop
     tight = tight_run(name, build)
     t_end = min(load_shipped(name).stop_time, MAX_T_END)
     rows = []
