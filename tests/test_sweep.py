@@ -12,7 +12,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from cedra.run import sweep as sw_mod
+from cedra.run import sweep as sw_mod, verdicts
 from cedra.run.scenario import fmu
 from cedra.run.sweep import SweepError, execute, load, read_table
 
@@ -89,7 +89,7 @@ def test_shipped_sweeps_load():
         assert sw.target.scene.options.chassis == (name != "climb_rigid"), name
         assert sw.target.variant == (on or name in ("climb", "climb_plain")), name
         assert sw.map["verdict"] == "verdict" and "verdict" in sw.outputs
-        assert sw_mod.actuation(sw).startswith("drives (stall 6 N.m, no-load 10 rad/s" if on else "plain torque")
+        assert sw.actuation().startswith("drives (stall 6 N.m, no-load 10 rad/s" if on else "plain torque")
         assert ("plain torque" in sw.map["title"]) != on and ("drives" in sw.map["title"]) == on, name
     for a, b in (("climb", "climb_plain"), ("climb_step", "climb_step_plain")):     # variants of the same map
         sa, sb = load(sw_mod.resolve(a)), load(sw_mod.resolve(b))
@@ -269,8 +269,8 @@ def test_drives_option_runs_the_drives_variant(tmp_path, bump2d_fmu):
     assert drives.target.variant and drives.target.scene.name == "bump2d_drives"
     assert "drive_stall_torque" in drives.target.limits and "drive_stall_torque" not in plain.target.limits
     assert plain.run_id(plain.runs()[0]) != drives.run_id(drives.runs()[0])
-    assert sw_mod.actuation(plain) == "plain torque (tau_max 4 N.m)"
-    assert sw_mod.actuation(drives) == "drives (stall 6 N.m, no-load 10 rad/s; tau_max 4 N.m commanded)"
+    assert plain.actuation() == "plain torque (tau_max 4 N.m)"
+    assert drives.actuation() == "drives (stall 6 N.m, no-load 10 rad/s; tau_max 4 N.m commanded)"
     assert execute(plain, BUILD, workers=2, quiet=True)["ran"] == 2
     counts = execute(drives, BUILD, workers=2, quiet=True, resume=True)
     assert counts == dict(total=2, skipped=0, ran=2, failed=0)
@@ -477,17 +477,17 @@ def test_a_rigid_runs_peak_force_carries_the_impacts():
 # ------------------------------------------------------------------ verdicts with the reason
 
 def test_verdict_rule():
-    v = sw_mod.verdict
+    v = verdicts.verdict
     assert v("ok", True, False, None) == "over"
     assert v("ok", True, False, 100.0) == "over"               # over is over, whatever the chassis carried
     assert v("ok", False, True, None) == "tipped"
     assert v("ok", False, True, 100.0) == "tipped"
     assert v("ok", False, False, None) == "stuck"              # no chassis.Fn output: a rover cannot hang up
-    assert v("ok", False, False, sw_mod.HUNG_FN) == "stuck"
-    assert v("ok", False, False, sw_mod.HUNG_FN + 1e-6) == "hung up"
+    assert v("ok", False, False, verdicts.HUNG_FN) == "stuck"
+    assert v("ok", False, False, verdicts.HUNG_FN + 1e-6) == "hung up"
     for status in ("timeout", "discard", "error", "failed"):
         assert v(status, True, False, None) == v(status, False, False, 50.0) == "failed"
-    assert set(sw_mod.VERDICTS) == {"over", "stuck", "hung up", "tipped", "failed"}
+    assert set(verdicts.VERDICTS) == {"over", "stuck", "hung up", "tipped", "failed"}
 
 
 MAP = """

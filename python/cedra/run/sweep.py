@@ -69,12 +69,13 @@ from pathlib import Path
 
 import numpy as np
 
+from cedra.run.verdicts import STUCK_DX, STUCK_TIME, TIPPED, verdict
 from cedra.run.sweep_map import check_map, draw
 
 CONTROLLER = {"tau_max": 4.0, "v_ref": 0.2}        # the main job's controller (cedra.run.simulate)
 # summary outputs of one run (see summarize); status and reason are always kept
 OUTPUTS = {
-    "verdict": "over | stuck | hung up | tipped | failed: how the run ended (see VERDICTS)",
+    "verdict": "over | stuck | hung up | tipped | failed: how the run ended (cedra.run.verdicts.VERDICTS)",
     "climbed": "1 if every wheel center passed the obstacle (x > obstacle end) before the stop time, upright, "
                "else 0",
     "t_over": "s: time when the last wheel center passed the obstacle (NaN if it did not)",
@@ -87,20 +88,6 @@ OUTPUTS = {
 }
 META = ["id", "status", "reason", "wall_s"]
 RUN_TIMEOUT = 300.0
-STUCK_TIME = 3.0       # s: a run whose body advanced less than STUCK_DX in this long is stopped: it will not climb
-STUCK_DX = 0.005
-TIPPED = 1.2           # rad: |body pitch| or |body roll| past this is a rover on its back or side: not a climb
-HUNG_FN = 5.0          # N: a rover that did not get over is hung up when its chassis carried more than this on mean
-VERDICTS = {           # a scene run's verdict -> its meaning (verdict())
-    "over": "every wheel center passed the obstacle's end, upright (climbed = 1)",
-    "stuck": f"not over: body.x advanced less than {STUCK_DX * 1e3:g} mm in {STUCK_TIME:g} s, or the stop time "
-             f"came first (the reason says which)",
-    "hung up": f"stuck while the chassis carries load: the mean of chassis.Fn over the last {STUCK_TIME:g} s of the "
-               f"run > {HUNG_FN:g} N (only an FMU with the output chassis.Fn can hang up)",
-    "tipped": f"body pitch or roll past +-{TIPPED} rad (on its back or side)",
-    "failed": "the run did not finish: status other than ok (the FMU refused a step, a timeout, an error); a "
-              "failure to simulate, not a failure to climb",
-}
 
 
 class SweepError(ValueError):
@@ -122,6 +109,25 @@ class Sweep:
     samples: int = 0
     seed: int = 0
     map: dict | None = None          # the [map] plot (cedra.run.sweep_map)
+
+    def actuation(self) -> str:
+        """What turns a scene run's wheels, for the map and its report: "drives (stall T_s N.m, no-load w_0 rad/s)"
+        or "plain torque"; each with the controller's tau_max (the command, which the drives clip by their envelope).
+        Empty for a scenario script."""
+        if self.target.kind != "scene":
+            return ""
+        values = {**CONTROLLER, **self.fixed}
+        swept = set(self.grid) | set(self.random)
+        tau = "tau_max swept" if "tau_max" in swept else f"tau_max {values['tau_max']:g} N.m"
+        scene = self.target.scene
+        if not scene.options.drives:
+            return f"plain torque ({tau})"
+        from cedra.rover.parameters import DEFAULTS
+        par = {**DEFAULTS, **scene.parameters, **values}
+        stall = "stall swept" if "drive_stall_torque" in swept else f"stall {par['drive_stall_torque']:g} N.m"
+        w0 = ("no-load swept" if "drive_noload_speed" in swept
+              else f"no-load {par['drive_noload_speed']:g} rad/s")
+        return f"drives ({stall}, {w0}; {tau} commanded)"
 
     @property
     def table(self) -> Path:
@@ -154,20 +160,6 @@ class Sweep:
 
 def _fail(path, key, reason):
     raise SweepError(f"{path}: {key}: {reason}")
-
-
-def verdict(status: str, climbed: bool, tipped: bool, chassis_fn_mean: float | None) -> str:
-    """A scene run's verdict (VERDICTS) from how it ended; chassis_fn_mean is the mean of chassis.Fn over the last
-    STUCK_TIME of the run, None when the FMU has no such output."""
-    if status != "ok":
-        return "failed"
-    if climbed:
-        return "over"
-    if tipped:
-        return "tipped"
-    if chassis_fn_mean is not None and chassis_fn_mean > HUNG_FN:
-        return "hung up"
-    return "stuck"
 
 
 def _finite(path, key, value) -> float:
@@ -397,26 +389,6 @@ def load(path) -> Sweep:
             _fail(path, f"map.{key}" if key else "map", reason)
     sw.map = data.get("map")
     return sw
-
-
-def actuation(sw: Sweep) -> str:
-    """What turns a scene run's wheels, for the map and its report: "drives (stall T_s N.m, no-load w_0 rad/s)"
-    or "plain torque"; each with the controller's tau_max (the command, which the drives clip by their envelope).
-    Empty for a scenario script."""
-    if sw.target.kind != "scene":
-        return ""
-    values = {**CONTROLLER, **sw.fixed}
-    swept = set(sw.grid) | set(sw.random)
-    tau = "tau_max swept" if "tau_max" in swept else f"tau_max {values['tau_max']:g} N.m"
-    scene = sw.target.scene
-    if not scene.options.drives:
-        return f"plain torque ({tau})"
-    from cedra.rover.parameters import DEFAULTS
-    par = {**DEFAULTS, **scene.parameters, **values}
-    stall = "stall swept" if "drive_stall_torque" in swept else f"stall {par['drive_stall_torque']:g} N.m"
-    w0 = ("no-load swept" if "drive_noload_speed" in swept
-          else f"no-load {par['drive_noload_speed']:g} rad/s")
-    return f"drives ({stall}, {w0}; {tau} commanded)"
 
 
 # ------------------------------------------------------------------ one run (on a worker)

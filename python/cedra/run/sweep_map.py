@@ -6,14 +6,14 @@ drawn from the sweep's table to <out>/<name>.png:
     y = "mu"
     panels = "terrain_w"         # optional: one panel per grid value
     verdict = "verdict"          # the output "verdict" (over, stuck, hung up, tipped, failed: VERDICTS of
-                                 # cedra.run.sweep), or an output that is 1 (yes) or 0 (no), such as "climbed"
+                                 # cedra.run.verdicts), or an output that is 1 (yes) or 0 (no), such as "climbed"
     x_scale = 0.065              # optional: show x / x_scale (e.g. in wheel radii) ...
     x_label = "h / R_w"          # ... under this label (likewise panel_scale, panel_label)
     mark = {terrain_h = 0.14625, terrain_w = 0.14625, mu = 0.8, label = "the paper's run"}
 
 Each verdict has its own colour (VERDICT_COLOURS), and the legend counts the runs of each. Runs that failed (status
 other than ok) are drawn grey: a failure to simulate is not a failure to climb. The title's second line says what
-turns the wheels (drives and their envelope, or plain torque: cedra.run.sweep.actuation).
+turns the wheels (drives and their envelope, or plain torque: cedra.run.sweep.Sweep.actuation).
 """
 from __future__ import annotations
 
@@ -128,9 +128,8 @@ def draw(sw, rows: list[dict]) -> Path:
     # one row while the labels fit the figure's width (about 16 characters of 8 pt per inch), else two columns
     fits = sum(len(lb) + 6 for lb in labels) <= 16 * fig.get_figwidth()
     fig.legend(handles, labels, loc="lower center", ncol=len(handles) if fits else 2, fontsize=8)
-    from cedra.run.sweep import actuation
     default_title = f"{sw.name}: {spec['verdict']} ({len(rows)} runs of {sw.target.kind} {sw.target.name})"
-    how = actuation(sw)
+    how = sw.actuation()
     lines = [spec.get("title", default_title)] + ([f"{sw.target.scene.name}: {how}"] if how else [])
     # wrapped to the figure's width (about 13 characters of 10 pt per inch), the plots below the lines it takes
     lines = [w for line in lines for w in textwrap.wrap(line, int(13 * fig.get_figwidth()))]

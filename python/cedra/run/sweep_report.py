@@ -119,13 +119,13 @@ def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float,
     """Write <out>/<name>.md; check = (the solver parameter, its value, the tight sweep, its rows) after --check-tol
     or --check-h."""
     from cedra.reports.common import provenance
-    from cedra.run.sweep import VERDICTS, actuation
+    from cedra.run.verdicts import VERDICTS
     ax = Axes(sw, rows)
     spec = sw.map
     lines = [f"# {spec.get('title', sw.name)}", "", provenance(command, wall, load_at_start), ""]
     what = f"{len(rows)} runs of {sw.target.kind} {sw.target.name}"
     if sw.target.kind == "scene":
-        what += f" (model {sw.target.scene.name}): {actuation(sw)}"
+        what += f" (model {sw.target.scene.name}): {sw.actuation()}"
     opts = ", ".join(f"{k} = {str(v).lower()}" for k, v in sw.target.options.items())
     lines += [what + (f"; sweep options: {opts}" if opts else "") + f"; {sw.stop_time:g} s simulated at most per "
               f"run; table `{sw.table.name}`.", "", f"![the map]({sw.name}.png)", ""]
