@@ -69,8 +69,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cedra.run.verdicts import STUCK_DX, STUCK_TIME, TIPPED, verdict
 from cedra.run.sweep_map import check_map, draw
+from cedra.run.verdicts import STUCK_DX, STUCK_TIME, TIPPED, verdict
 
 CONTROLLER = {"tau_max": 4.0, "v_ref": 0.2}        # the main job's controller (cedra.run.simulate)
 # summary outputs of one run (see summarize); status and reason are always kept
