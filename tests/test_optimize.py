@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from cedra.run import optimize
+from cedra.run.shooting import interval_jacobian
 
 REPO = Path(__file__).resolve().parents[1]
 BUILD = REPO / "build"
@@ -110,7 +111,7 @@ def test_the_differenced_hessian_is_the_lagrangians_own():
     wv, lam = rng.uniform(-1, 1, w.numel()), rng.uniform(-2, 2, g.numel())
     lam_f = 0.7
     exact = np.array(ca.Function("h", [w], [ca.hessian(lam_f * J + ca.dot(ca.DM(lam), g), w)[0]])(wv))
-    hess = optimize.ShootingHessian(w, J, g.numel(), n, optimize._interval_jacobian(F, nx, 1), proximal=0.0)
+    hess = optimize.ShootingHessian(w, J, g.numel(), n, interval_jacobian(F, nx, 1), proximal=0.0)
     got = hess.matrix(wv, lam_f, lam)
     assert np.max(np.abs(got - exact)) < 1e-4 * np.max(np.abs(exact)), np.max(np.abs(got - exact))
     assert np.max(np.abs(exact - np.diag(np.diag(exact)))) > 0.1      # the intervals' own curvature is in it

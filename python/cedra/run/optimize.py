@@ -107,7 +107,7 @@ import numpy as np
 from cedra.models.scene import SceneError, choice, fail, load_shipped, number, read_toml, shipped
 from cedra.rover.parameters import DEFAULTS
 from cedra.run.oracle import NumpyFunction, hess_lag_io
-from cedra.run.shooting import CarriedSpinHessian, CarriedSpinShooting
+from cedra.run.shooting import CarriedSpinHessian, CarriedSpinShooting, interval_jacobian, mapped
 
 OBJECTIVES = ("energy", "peak_friction", "time")
 GUESSES = {"equal_torques": 0, "inverse_kinematics": 1, "traction_control": 2}     # ctrl.mode of the drive controller
@@ -582,7 +582,7 @@ def solve(problem: Problem, dyn: Dynamics, x0, X_guess, U_guess, dt_guess: float
     elif hessian == "differenced" and spin_rates == "carried":
         hess = {"hess_lag": CarriedSpinHessian(shooting, _objective_part(w, J, nx * (n + 1), proximal))}
     elif hessian == "differenced":
-        hess = {"hess_lag": ShootingHessian(w, J, nlp["g"].numel(), n, _interval_jacobian(
+        hess = {"hess_lag": ShootingHessian(w, J, nlp["g"].numel(), n, interval_jacobian(
             dyn.integrator(problem.integrator_tol, dt=dt_guess), nx, 4), problem.threads, proximal)}
     else:
         hess = {}
@@ -623,7 +623,7 @@ def _lifted_constraints(problem: Problem, dyn: Dynamics, n: int, dt_guess: float
     dt = ca.MX.sym("dt")
     s = ca.MX.sym("s")
     F = dyn.integrator(problem.integrator_tol, dt=None if free_dt else dt_guess)
-    F = F.map(n, "thread", problem.threads) if problem.threads > 1 else F.map(n, "serial")
+    F = mapped(F, n, problem.threads)
     xf = F(x0=X[:, :n], p=ca.vertcat(U, ca.repmat(dt, 1, n)) if free_dt else U)["xf"]
     g = [ca.vec(xf - X[:, 1:]), X[0, n] - goal_x]
     lbg = [np.zeros(dyn.nr * n), [0.0]]
@@ -681,12 +681,6 @@ def _objective_part(w, J, n_states: int, proximal: float) -> ca.Function:
                                                                           ca.DM.zeros(w.numel() - n_states)))])
 
 
-def _interval_jacobian(F: ca.Function, nx: int, nu: int) -> ca.Function:
-    """d xf / d (x0, p) of one shooting interval F(x0, p) -> xf, as one nx x (nx + nu) matrix."""
-    x, p = ca.MX.sym("x", nx), ca.MX.sym("p", nu)
-    return ca.Function("interval_jacobian", [x, p], [ca.jacobian(F(x0=x, p=p)["xf"], ca.vertcat(x, p))])
-
-
 class ShootingHessian(NumpyFunction):
     """The Hessian of the Lagrangian with the shooting constraints' curvature (solver.hessian = "differenced"):
     lam_f times the objective's own with the proximal term (_objective_part, as the Gauss-Newton Hessian) plus,
@@ -707,8 +701,7 @@ class ShootingHessian(NumpyFunction):
         self.nw, self.n_g, self.n = w.numel(), n_g, n
         nz, nx = self.nx + self.nu, self.nx
         self.objective_part = _objective_part(w, J, nx * (n + 1), proximal)
-        self.jacobians = jacobian.map(n * (nz + 1), "thread", threads) if threads > 1 else \
-            jacobian.map(n * (nz + 1), "serial")
+        self.jacobians = mapped(jacobian, n * (nz + 1), threads)
         self.blocks = [np.r_[np.arange(k * nx, (k + 1) * nx), nx * (n + 1) + self.nu * k + np.arange(self.nu)]
                        for k in range(n)]
         # the pattern: every interval's block, the diagonal (proximal) and the objective's own Hessian

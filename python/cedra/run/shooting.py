@@ -28,6 +28,17 @@ import numpy as np
 from cedra.run.oracle import NumpyFunction, hess_lag_io
 
 
+def interval_jacobian(F: ca.Function, nx: int, npar: int) -> ca.Function:
+    """d xf / d (x0, p) of one shooting interval F(x0, p) -> xf, as one nx x (nx + npar) matrix."""
+    x, p = ca.MX.sym("x", nx), ca.MX.sym("p", npar)
+    return ca.Function("interval_jacobian", [x, p], [ca.jacobian(F(x0=x, p=p)["xf"], ca.vertcat(x, p))])
+
+
+def mapped(f: ca.Function, count: int, threads: int) -> ca.Function:
+    """f evaluated at `count` points (columns) at once, on `threads` threads (serially with one)."""
+    return f.map(count, "thread", threads) if threads > 1 else f.map(count, "serial")
+
+
 class CarriedSpinShooting:
     """The constraints of the carried-spin transcription for n intervals of the Dynamics `dyn` (cedra.run.optimize)
     from the full shooting state x0, at the smoothing width dyn.width when the functions are formed."""
@@ -46,10 +57,10 @@ class CarriedSpinShooting:
         self.ng = self.nb * n + 1 + (8 * n if peak else 0)
         self.F = dyn.integrator(tol, dt=None if free_dt else dt)
         npar = self.nu + (1 if free_dt else 0)
-        x, p = ca.MX.sym("x", self.nr), ca.MX.sym("p", npar)
-        jac = ca.Function("interval_jacobian", [x, p], [ca.jacobian(self.F(x0=x, p=p)["xf"], ca.vertcat(x, p))])
-        self.jacobians = jac.map(n, "thread", threads) if threads > 1 else jac.map(n, "serial")
-        self._interval_jacobian, self.threads = jac, threads
+        jac = interval_jacobian(self.F, self.nr, npar)
+        self.jacobians = mapped(jac, n, threads)
+        # constraint_curvature's differences: every interval's Jacobian at each of its nr + nu perturbed inputs
+        self._differences = mapped(jac, n * (self.nr + self.nu), threads) if not free_dt else None
         if peak:
             xr = ca.MX.sym("x", self.nr)
             fn, fx = dyn.forces(xr)
@@ -225,9 +236,7 @@ class CarriedSpinShooting:
         Z = np.vstack([starts, U])                                          # nz x n
         steps = self.STEP * np.maximum(1.0, np.abs(Z))
         points = np.concatenate([Z + np.eye(nz)[:, [c]] * steps[c] for c in range(nz)], axis=1)
-        mapped = self._interval_jacobian.map(self.n * nz, "thread", self.threads) if self.threads > 1 else \
-            self._interval_jacobian.map(self.n * nz, "serial")
-        jac = np.array(mapped(points[:self.nr], points[self.nr:])).reshape(self.nr, nz, self.n, nz)
+        jac = np.array(self._differences(points[:self.nr], points[self.nr:])).reshape(self.nr, nz, self.n, nz)
         H = np.zeros((self.nw, self.nw))
         for k in range(self.n):
             base = mus[k] @ Js[k]
