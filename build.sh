@@ -1,12 +1,17 @@
 #!/usr/bin/env bash
 # ./build.sh         set up .venv (if missing), generate, compile and package every shipped scene into build/
-#                    (pip installs requirements.txt and the package with its 'bench' extra: mujoco, for the benchmark)
-# ./build.sh demo    ... then run the main job: the paper's bump run (out/bump2d/: CSV, plots; prints timing)
-# ./build.sh test    ... then run the tests
+#                    (pip installs requirements.txt and the package with its 'bench' extra: mujoco, for the benchmark);
+#                    an FMU whose stamp matches today's sources is kept, and every compiled object comes from the
+#                    object cache (~/.cache/cedra, or CEDRA_CACHE) when its C is unchanged
+# ./build.sh demo    set up .venv, build what the main job needs (bump2d), run it: the paper's bump run
+#                    (out/bump2d/: CSV, plots; prints timing)
+# ./build.sh test    build every shipped scene, then run the tests
+# Each build writes build/build-report.md (what was built, from the cache or compiled, and how long it took).
 # ./build.sh docs    set up .venv, then build the documentation site into build/docs/ (Sphinx, warnings are errors;
 #                    docs/conf.py generates the FMU reference from the variable table; no FMU is built)
 set -euo pipefail
 cd "$(dirname "$0")"
+export CEDRA_BUILD_START="${CEDRA_BUILD_START:-$(date +%s.%N)}"     # the build report's "since ./build.sh started"
 if [ ! -x .venv/bin/python ]; then
     python3 -m venv .venv
     .venv/bin/pip install -q --upgrade pip
@@ -18,10 +23,11 @@ PY=.venv/bin/python
 if [ "${1:-}" = docs ]; then
     exec $PY -m sphinx -W --keep-going -n -q -b html docs build/docs
 fi
-$PY -m cedra build --out build
 case "${1:-}" in
-    demo) $PY -m cedra simulate bump2d --build build --out out ;;
-    test) shift; $PY -m pytest -q -n 2 "$@" ;;
-    "") ;;
+    demo) $PY -m cedra build bump2d --out build
+          $PY -m cedra simulate bump2d --build build --out out ;;
+    test) shift; $PY -m cedra build --out build
+          $PY -m pytest -q -n 2 "$@" ;;
+    "") $PY -m cedra build --out build ;;
     *) echo "usage: $0 [demo|test|docs]" >&2; exit 2 ;;
 esac

@@ -34,13 +34,18 @@ LOG_CATEGORIES = [
     ("logStatusFatal", "fatal errors"),
     ("logAll", "everything"),
 ]
-# C files shipped in sources/ (the model's generated file last)
-# the C files of each kind of block's FMU (sources/ and the build): the generic glue, the block, what it uses
-SOURCE_FILES = {
-    "plant": ["fmi2_glue.c", "plant.c", "model_glue.c", "solver.c", "linalg.c", "rigid.c", "heightmap.c", "rim.c",
-              "cedra_model.c"],
-    "controller": ["fmi2_glue.c", "controller.c", "cedra_model.c"],
+# the hand-written C files of each kind of block's FMU (sources/ and the build): the generic glue, the block, what
+# it uses; the generated model's files (one per contract function) follow them (source_files)
+HAND_WRITTEN_C = {
+    "plant": ["fmi2_glue.c", "plant.c", "model_glue.c", "solver.c", "linalg.c", "rigid.c", "heightmap.c", "rim.c"],
+    "controller": ["fmi2_glue.c", "controller.c"],
 }
+
+
+def source_files(spec: ModelSpec) -> list[str]:
+    """Every C file the FMU ships in sources/ and compiles: the hand-written ones, then the generated ones."""
+    from cedra.fmu.codegen import generated_files
+    return HAND_WRITTEN_C[spec.block] + generated_files(spec)
 
 
 def _fmt(x: float) -> str:
@@ -115,7 +120,7 @@ def model_description(spec: ModelSpec, guid: str) -> etree._Element:
                           canNotUseMemoryManagementFunctions="false", canGetAndSetFMUstate="true",
                           canSerializeFMUstate="true", providesDirectionalDerivative="false")
     sf = etree.SubElement(cs, "SourceFiles")
-    for f in SOURCE_FILES[spec.block]:
+    for f in source_files(spec):
         etree.SubElement(sf, "File", name=f)
     ud = etree.SubElement(root, "UnitDefinitions")
     for u in units(table):

@@ -293,21 +293,24 @@ def test_drives_option_runs_the_drives_variant(tmp_path, bump2d_fmu):
                 assert d[o] == alone[o]
             else:
                 assert float(d[o]) == pytest.approx(alone[o], rel=1e-9, abs=1e-12, nan_ok=True), o
-    # the built variant is kept while its model and the FMU's sources are the same, and rebuilt otherwise
-    spec = drives.target.scene.spec()
-    assert sw_mod._same_build(variant_fmu, spec)
-    assert not sw_mod._same_build(fmu("bump2d_drives", BUILD), spec)          # another description: another GUID
-    changed = tmp_path / "changed.fmu"
-    with zipfile.ZipFile(variant_fmu) as src, zipfile.ZipFile(changed, "w") as dst:
-        for item in src.infolist():
-            data = src.read(item)
-            dst.writestr(item, data + b"\n" if item.filename == "sources/solver.c" else data)
-    assert not sw_mod._same_build(changed, spec)
-    from cedra.fmu import packaging                 # other compiler flags today: not the same build either
-    flags = packaging.HAND_WRITTEN_CFLAGS
+    # the built variant is kept while its stamp matches (the scene, today's sources and flags, the FMU file itself)
+    # and rebuilt otherwise
+    from cedra.fmu import packaging
+    from cedra.models.scene import load_shipped
+    scene = drives.target.scene
+    assert packaging.fmu_state(scene, variant_fmu.parent)[2] == "up to date"
+    assert packaging.build_key(scene) != packaging.build_key(load_shipped("bump2d_drives"))   # another scene
+    changed = tmp_path / "variants"
+    changed.mkdir()
+    copy = changed / variant_fmu.name
+    copy.write_bytes(variant_fmu.read_bytes() + b"\0")           # the FMU is not the file its stamp hashed
+    copy.with_name(copy.name + packaging.STAMP_SUFFIX).write_bytes(
+        variant_fmu.with_name(variant_fmu.name + packaging.STAMP_SUFFIX).read_bytes())
+    assert packaging.fmu_state(scene, changed)[2] == "stale"
+    flags = packaging.HAND_WRITTEN_CFLAGS                     # other compiler flags today: not the same build either
     try:
         packaging.HAND_WRITTEN_CFLAGS = ["-O2"]
-        assert not sw_mod._same_build(variant_fmu, spec)
+        assert packaging.fmu_state(scene, variant_fmu.parent)[2] == "stale"
     finally:
         packaging.HAND_WRITTEN_CFLAGS = flags
     mtime = variant_fmu.stat().st_mtime_ns

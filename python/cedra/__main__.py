@@ -9,27 +9,34 @@ from pathlib import Path
 from cedra.contract import SOLVER_METHODS
 
 
-def _build_one(name: str, out: str) -> tuple[str, str, float, float]:
+def _build_one(name: str, out: str, jobs: int) -> dict:
     """Generate, compile and package one scene (shipped name or .toml) or drive controller, in a worker process:
-    (FMU name, path, seconds for the model, seconds for C code and compile)."""
-    from cedra.models.controller import CONTROLLERS, shipped_controller
-    from cedra.fmu.packaging import build_fmu
-    from cedra.models.scene import load, load_shipped
+    what the build report shows of it (cedra.fmu.build_report)."""
+    from cedra.fmu.compiler import CompileStats
+    from cedra.fmu.packaging import _resolve, build_fmu, fmu_state, write_stamp
     t0 = time.perf_counter()
-    if name in CONTROLLERS:
-        spec = shipped_controller(name)
-    else:
-        spec = (load(name) if name.endswith(".toml") else load_shipped(name)).spec()
+    fmu, what, form = _resolve(name)
+    path, key, _ = fmu_state(what, out)
+    spec = form()
+    dict(spec.functions)                # the model's CasADi functions formed here, so "model" is what it costs
     t1 = time.perf_counter()
-    path = build_fmu(spec, Path(out))
-    return spec.name, str(path), t1 - t0, time.perf_counter() - t1
+    stats = CompileStats()
+    path = build_fmu(spec, Path(out), jobs=jobs, stats=stats)
+    write_stamp(path, key)
+    gen = sum(p.stat().st_size for p in (Path(out) / fmu / "sources").glob("cedra_*.c"))
+    return dict(fmu=fmu, path=str(path), state="built", model_s=t1 - t0, code_s=time.perf_counter() - t1,
+                compiled=len(stats.compiled), cached=len(stats.cached), compile_cpu_s=sum(stats.seconds.values()),
+                generated_bytes=gen)
 
 
 def cmd_build(args):
     import os
     from concurrent.futures import ProcessPoolExecutor
+    from cedra.fmu import build_report
+    from cedra.fmu.packaging import fmu_state
     from cedra.models.controller import CONTROLLERS
     from cedra.models.scene import SceneError, load, load_shipped, shipped
+    t_start = time.perf_counter()
     names = list(dict.fromkeys(args.scenes or shipped() + list(CONTROLLERS)))
     dims, fmu_names = {}, {}
     for name in names:              # every scene file is checked before any code is generated
@@ -47,19 +54,35 @@ def cmd_build(args):
             print(f"error: {name} and {other} both build the FMU {scene.name!r}", file=sys.stderr)
             return 2
         fmu_names[name] = scene.name
-    # The scenes build in parallel (one process each; a 3D scene's generated C takes 25-50 s to compile, a 2D one
-    # 6-10 s): the 3D ones first, so that the short ones fill in behind them.
-    order = sorted(names, key=lambda n: dims.get(n) != "3d")
-    jobs = max(1, min(args.jobs or os.cpu_count() or 1, len(order)))
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(_build_one, name, args.out) for name in order]
-        for f in futures:
-            fmu, path, t_model, t_code = f.result()
-            print(f"{fmu}: {path} (model {t_model:.1f} s, C code and compile {t_code:.1f} s)", flush=True)
+    rows, todo = [], []
+    for name in names:              # an FMU whose stamp matches today's sources and scene is kept as it is
+        path, _, state = fmu_state(name, args.out)
+        if state == "up to date" and not args.force:
+            rows.append(dict(fmu=fmu_names[name], path=str(path), state="up to date"))
+            print(f"{fmu_names[name]}: up to date ({path})", flush=True)
+        else:
+            todo.append(name)
+    # The scenes build in parallel (one process each, each compiling its files on the cores left to it): the 3D
+    # ones first, so that the short ones fill in behind them.
+    order = sorted(todo, key=lambda n: dims.get(n) != "3d")
+    cores = os.cpu_count() or 1
+    procs = max(1, min(args.jobs or cores, len(order) or 1))
+    threads = max(1, cores // procs)
+    if order:
+        with ProcessPoolExecutor(max_workers=procs) as pool:
+            futures = [pool.submit(_build_one, name, args.out, threads) for name in order]
+            for f in futures:
+                r = f.result()
+                rows.append(r)
+                print(f"{r['fmu']}: {r['path']} (model {r['model_s']:.1f} s, C code and compile {r['code_s']:.1f} s: "
+                      f"{r['compiled']} files compiled, {r['cached']} from the cache)", flush=True)
     if not args.scenes:
         from cedra.run.ssp import SYSTEMS, build_system
         for name in SYSTEMS:
             print(f"{name}: {build_system(name, Path(args.out))} (SSP: plant + drive controller)")
+    page = build_report.write(Path(args.out), rows, time.perf_counter() - t_start, procs, threads,
+                              " ".join(["python -m cedra build", *sys.argv[2:]]))
+    print(f"build report: {page}")
     return 0
 
 
@@ -71,7 +94,8 @@ def cmd_simulate(args):
             print(f"{name:18s} {line}")
         return 0
     if args.scene == scenario.MAIN_JOB:
-        return simulate.main(Path(args.build) / "bump2d.fmu", Path(args.out) / "bump2d", args.stop_time or 15.0,
+        from cedra.fmu.packaging import ensure_fmu
+        return simulate.main(ensure_fmu("bump2d", args.build), Path(args.out) / "bump2d", args.stop_time or 15.0,
                              video=not args.no_video)
     try:
         mod = scenario.load(args.scene)
@@ -136,6 +160,8 @@ def main(argv=None):
                    "(drive2d, drive3d, rb_drive2d, rb_drive3d)")
     b.add_argument("--out", default="build")
     b.add_argument("--jobs", type=int, default=0, help="scenes built at once (default: one per CPU core)")
+    b.add_argument("--force", action="store_true", help="build even the FMUs whose stamp says they are up to date "
+                   "(their objects still come from the object cache where it holds them)")
     s = sub.add_parser("simulate", help="run the main job (bump2d: the paper's bump run) or a scenario script")
     s.add_argument("scene", nargs="?", default="bump2d", help="bump2d or a scenario in examples/ (see --list)")
     s.add_argument("--list", action="store_true", help="list the scenarios")

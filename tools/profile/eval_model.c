@@ -1,5 +1,5 @@
 /* Cost of one evaluation of a scene's generated functions, for callgrind (instruction counts are immune to the
- * noise of a shared machine). Compiled with the scene's sources/ (cedra_model.c, heightmap.c) by
+ * noise of a shared machine). Compiled with the scene's sources/ (the generated cedra_*.c, heightmap.c) by
  * tools/profile/profile.py:
  *     eval_model <state file> <heightmap file or -> <function: f | rjac | switch | out | M> <repetitions>
  * The state file holds nq, nin, npar, then q, u, a (nq each), inp, par. */

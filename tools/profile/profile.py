@@ -83,10 +83,11 @@ def main():
         exe = d / "eval_model"
         # the contact search of several contacts per wheel (rim.c) where the model calls it, as the FMU links it
         extra = [str(src / "rim.c")] if (src / "rim.c").exists() else []
-        has_switch = "cedra_switch" in (src / "cedra_model.h").read_text()
+        has_switch = (src / "cedra_switch.c").exists()
         extra += ["-DHAS_SWITCH"] if has_switch else []
         subprocess.run(["gcc", "-std=c99", "-O2", "-I", str(src), "-Wno-unused-parameter", str(HERE / "eval_model.c"),
-                        str(src / "cedra_model.c"), str(src / "heightmap.c"), *extra, "-o", str(exe), "-lm"],
+                        *sorted(str(f) for f in src.glob("cedra_*.c")), str(src / "heightmap.c"), *extra, "-o",
+                        str(exe), "-lm"],
                        check=True)
         grid = str(sc.options.heightmap) if sc.options.heightmap else "-"
         print(f"{args.scene}: state at t = {args.time} s: " + ", ".join(f"{k} {x:.4g}" for k, x in vals.items()))

@@ -1,7 +1,13 @@
-"""C code of a ModelSpec's CasADi functions: one file cedra_model.c (+ cedra_model.h) in the build tree.
+"""C code of a ModelSpec's CasADi functions: one translation unit per function (<name>.c and <name>.h, the
+contract's fixed names, as acados generates one file per function), and cedra_model.h, which includes every
+function's header, for the glue.
 
-The generated file is compiled with the hand-written glue's flags relaxed only for it (GENERATED_CFLAGS_RELAX):
-CasADi's code has unused parameters/variables in some functions.
+One file per function lets the compiler see small units, compiles them in parallel, lets each file get the
+optimization level its function is worth (cedra.fmu.packaging.compile_flags), and lets the object cache
+(cedra.fmu.compiler) keep every function whose C did not change.
+
+The generated files are compiled with the hand-written glue's flags relaxed only for them
+(GENERATED_CFLAGS_RELAX): CasADi's code has unused parameters/variables in some functions.
 """
 from __future__ import annotations
 
@@ -30,13 +36,33 @@ def dense(fn: ca.Function) -> ca.Function:
     return ca.Function(fn.name(), args, [ca.densify(o) for o in outs], fn.name_in(), fn.name_out())
 
 
-def generate_c(spec: ModelSpec, out_dir) -> tuple[Path, Path]:
-    """Write out_dir/cedra_model.c and out_dir/cedra_model.h with every contract function; returns both paths."""
+MODEL_HEADER = "cedra_model.h"
+
+
+def generated_files(spec: ModelSpec) -> list[str]:
+    """The C files generate_c writes for spec, in the contract's function order."""
+    return [f"{name}.c" for name in spec.function_names()]
+
+
+def is_generated(file_name: str) -> bool:
+    """Whether a C file of an FMU's sources/ is generated (a contract function's: cedra_*.c); the hand-written
+    files (fmu_src/) have other names."""
+    return file_name.startswith("cedra_") and file_name.endswith(".c")
+
+
+def generate_c(spec: ModelSpec, out_dir) -> list[Path]:
+    """Write out_dir/<name>.c and <name>.h for every contract function and out_dir/cedra_model.h including all the
+    headers; returns the C files."""
     spec.check()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    cg = ca.CodeGenerator("cedra_model.c", CODEGEN_OPTIONS)
-    for name in spec.function_names():
+    names = spec.function_names()
+    for name in names:
+        cg = ca.CodeGenerator(f"{name}.c", CODEGEN_OPTIONS)
         cg.add(dense(spec.functions[name]))
-    cg.generate(str(out_dir) + "/")
-    return out_dir / "cedra_model.c", out_dir / "cedra_model.h"
+        cg.generate(str(out_dir) + "/")
+    guard = "CEDRA_MODEL_H"
+    (out_dir / MODEL_HEADER).write_text(
+        f"/* The model's generated functions, one file each (cedra.fmu.codegen). */\n#ifndef {guard}\n"
+        f"#define {guard}\n" + "".join(f'#include "{n}.h"\n' for n in names) + f"#endif /* {guard} */\n")
+    return [out_dir / f"{n}.c" for n in names]

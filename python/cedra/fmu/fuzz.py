@@ -27,7 +27,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cedra.fmu.codegen import GENERATED_CFLAGS_RELAX
+from cedra.fmu.codegen import GENERATED_CFLAGS_RELAX, is_generated
 from cedra.fmu.packaging import REPO_ROOT
 
 FUZZ_C = REPO_ROOT / "tools" / "fuzz" / "fmu_fuzz.c"
@@ -128,7 +128,7 @@ def build(fmu, variant: str = "asan", defines=(), cache=CACHE) -> Path:
             (src / name).write_bytes(data)
 
         def obj(name):
-            extra = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="] if name == "cedra_model.c" else []
+            extra = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="] if is_generated(name) else []
             _compile([CC, *FMU_CFLAGS, *flags, *extra, "-I", str(src), "-c", str(src / name), "-o",
                       str(tmp / (Path(name).stem + ".o"))], tmp)
 

@@ -2,20 +2,37 @@
 (all from cedra.fmu.variables), compile the shared library, check its exported symbols, package.
 
     build_fmu(spec, build_dir) -> Path of <build_dir>/<spec.name>.fmu
+    ensure_fmu(name_or_scene, build_dir) -> the FMU, built first if it is missing or stale
 
 The build tree <build_dir>/<spec.name>/ (git-ignored) holds every file the FMU ships in sources/ plus the
-objects. Hand-written C (fmu_src/) is compiled with CFLAGS (warnings are errors); the CasADi-generated
-cedra_model.c additionally with codegen.GENERATED_CFLAGS_RELAX.
+objects. Hand-written C (fmu_src/) is compiled with CFLAGS (warnings are errors); the CasADi-generated files
+(one per contract function, cedra.fmu.codegen) additionally with codegen.GENERATED_CFLAGS_RELAX. Every object comes
+from the object cache when its translation unit, flags and compiler are the same (cedra.fmu.compiler).
+
+An FMU built by ensure_fmu carries a build stamp beside it (<name>.fmu.stamp): the hash of what it was built from
+(the model's sources, the scene, its heightmap, the flags) and of the FMU file itself. ensure_fmu builds again
+only when the stamp does not match; a stamp is cheap to check (no model is formed), so an unchanged scene is
+reused at once.
 """
 from __future__ import annotations
 
+import hashlib
 import importlib.util
+import json
+import os
 import shutil
-import subprocess
+import sys
+import time
 import zipfile
+from dataclasses import fields
+from functools import lru_cache
 from pathlib import Path
 
-from cedra.fmu.codegen import GENERATED_CFLAGS_RELAX, generate_c
+import casadi as ca
+
+from cedra.fmu.codegen import GENERATED_CFLAGS_RELAX, MODEL_HEADER, generate_c, is_generated
+from cedra.fmu.compiler import CompileError, CompileJob, CompileStats, compile_objects, compiler_identity
+from cedra.fmu.compiler import run as _compiler_run
 from cedra.mechanics.heightmap import RESOURCE_NAME
 from cedra.contract import ModelSpec
 from cedra.fmu.reference import html_page
@@ -30,15 +47,13 @@ CFLAGS = ["-std=c99", "-O2", "-fPIC", "-Wall", "-Wextra", "-Werror", "-fvisibili
 # hills3d, the same results bit for bit (no fast-math: IEEE order kept). The generated model stays at -O2: -O3
 # compiled it slower and gained nothing measurable.
 HAND_WRITTEN_CFLAGS = ["-O3"]
-# A generated model above LARGE_MODEL_BYTES of C (the 3D scenes with chassis points and several contacts per wheel:
-# ~10 MB) is compiled at -O1: GCC's -O2 passes grow worse than linearly in a function's size on CasADi's
-# straight-line code. rubble3d (9.8 MB): `python -m cedra build rubble3d` 188 s -> 97 s, the CPU of 10 s of its
-# main job (cedra.run.simulate.run_bump) 3.38 -> 3.52 s (best of 2 each).
-LARGE_MODEL_BYTES = 8_000_000
-LARGE_MODEL_FLAGS = ["-O1"]
+# A generated function above LARGE_FUNCTION_BYTES of C (the 3D scenes' Jacobians with chassis points and several
+# contacts per wheel) is compiled at -O1: GCC's -O2 passes grow worse than linearly in a function's size on
+# CasADi's straight-line code (rubble3d's whole model at 9.8 MB: 188 s -> 97 s to build, +4 % CPU of its run).
+LARGE_FUNCTION_BYTES = 3_000_000
+LARGE_FUNCTION_FLAGS = ["-O1"]
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-GENERATED_C = "cedra_model.c"
-# the hand-written headers of each kind of block (the C files: modelDescription/generate.py SOURCE_FILES)
+# the hand-written headers of each kind of block (the C files: modelDescription/generate.py HAND_WRITTEN_C)
 HAND_WRITTEN_H = {
     "plant": ("cedra_var.h", "glue.h", "plant.h", "model_glue.h", "solver.h", "linalg.h", "rigid.h", "heightmap.h"),
     "controller": ("cedra_var.h", "glue.h", "controller.h"),
@@ -73,11 +88,11 @@ def fmi_headers_dir() -> Path:
     return Path(fmpy.__file__).parent / "c-code"
 
 
-def _run(cmd, cwd):
-    r = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise BuildError(f"{' '.join(map(str, cmd))} failed (rc {r.returncode}):\n{r.stdout}{r.stderr}")
-    return r.stdout
+def _run(cmd, cwd=None):
+    try:
+        return _compiler_run(cmd, cwd)
+    except CompileError as e:
+        raise BuildError(str(e)) from None
 
 
 def exported_symbols(so_path) -> set[str]:
@@ -95,12 +110,12 @@ FLAGS_FILE = "build_flags.txt"      # sources/: each C file's compiler flags ("<
 
 
 def compile_flags(file_name: str, size: int, extra_cflags=()) -> list[str]:
-    """The compiler flags of one C file of an FMU (size: its bytes; the generated model's size picks its level)."""
+    """The compiler flags of one C file of an FMU (size: its bytes; a generated function's size picks its level)."""
     own = HAND_WRITTEN_CFLAGS
-    if file_name == GENERATED_C:
+    if is_generated(file_name):
         own = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="]
-        if size > LARGE_MODEL_BYTES:
-            own += LARGE_MODEL_FLAGS
+        if size > LARGE_FUNCTION_BYTES:
+            own += LARGE_FUNCTION_FLAGS
     return CFLAGS + own + list(extra_cflags)
 
 
@@ -109,9 +124,16 @@ def flags_text(sizes: dict[str, int], extra_cflags=()) -> str:
     return "".join(f"{f}: {' '.join(compile_flags(f, n, extra_cflags))}\n" for f, n in sorted(sizes.items()))
 
 
-def build_fmu(spec: ModelSpec, build_dir, extra_cflags=()) -> Path:
+def _jobs() -> int:
+    """Compiles at once within one build: CEDRA_BUILD_JOBS, else every core."""
+    return max(1, int(os.environ.get("CEDRA_BUILD_JOBS", 0)) or os.cpu_count() or 1)
+
+
+def build_fmu(spec: ModelSpec, build_dir, extra_cflags=(), jobs: int | None = None,
+              stats: CompileStats | None = None) -> Path:
     """Generate, compile and package the FMU; returns <build_dir>/<spec.name>.fmu. extra_cflags go after CFLAGS
-    (e.g. the precision report's baseline build: -D switches of the plant's C)."""
+    (e.g. the precision report's baseline build: -D switches of the plant's C). jobs: compiles at once (default:
+    every core); stats, if given, gets which files came from the object cache and which were compiled."""
     spec.check()
     build_dir = Path(build_dir).resolve()
     tree = build_dir / spec.name
@@ -123,8 +145,8 @@ def build_fmu(spec: ModelSpec, build_dir, extra_cflags=()) -> Path:
     gen = _generator()
     guid = gen.spec_guid(spec)
     # sources/: hand-written C, FMI headers, generated model, variable header
-    c_files = gen.SOURCE_FILES[spec.block]
-    for f in [f for f in c_files if f != GENERATED_C] + list(HAND_WRITTEN_H[spec.block]):
+    c_files = gen.source_files(spec)
+    for f in [f for f in c_files if not is_generated(f)] + list(HAND_WRITTEN_H[spec.block]):
         shutil.copy2(FMU_SRC / f, src / f)
     for f in FMI_HEADERS:
         shutil.copy2(fmi_headers_dir() / f, src / f)
@@ -134,27 +156,27 @@ def build_fmu(spec: ModelSpec, build_dir, extra_cflags=()) -> Path:
     missing = set(c_files) - {p.name for p in src.glob("*.c")}
     if missing:
         raise BuildError(f"SourceFiles lists files that are not in sources/: {sorted(missing)}")
-    # compile
-    objects = []
+    if not (src / MODEL_HEADER).is_file():
+        raise BuildError(f"the generated model's header {MODEL_HEADER} is missing from sources/")
+    # compile: one translation unit per file, in parallel, each from the object cache where it holds it
     sizes = {f: (src / f).stat().st_size for f in c_files}
-    for f in c_files:
-        flags = compile_flags(f, sizes[f], extra_cflags)
-        o = obj / (Path(f).stem + ".o")
-        _run([CC, *flags, "-I", str(src), "-c", str(src / f), "-o", str(o)], cwd=tree)
-        objects.append(str(o))
+    work = [CompileJob(src / f, tuple(compile_flags(f, sizes[f], extra_cflags)), src) for f in c_files]
+    try:
+        objects = compile_objects(work, obj, workers=jobs or _jobs(), cc=CC, stats=stats)
+    except CompileError as e:
+        raise BuildError(str(e)) from None
     so = tree / f"{spec.name}.so"
-    _run([CC, "-shared", "-fvisibility=hidden", "-o", str(so), *objects, "-lm"], cwd=tree)
+    _run([CC, "-shared", "-fvisibility=hidden", "-o", str(so), *map(str, objects), "-lm"], cwd=tree)
     exported = exported_symbols(so)
     if exported != FMI2_CS_FUNCTIONS:
         raise BuildError(f"{so} exports {sorted(exported - FMI2_CS_FUNCTIONS)} beyond the fmi2 functions and "
                          f"misses {sorted(FMI2_CS_FUNCTIONS - exported)}")
     doc = tree / "index.html"
     doc.write_text(documentation(spec))
-    # package
+    # package: written next to the FMU, then renamed over it (a reader never sees half an FMU)
     fmu = build_dir / f"{spec.name}.fmu"
-    if fmu.exists():
-        fmu.unlink()
-    with zipfile.ZipFile(fmu, "w", zipfile.ZIP_DEFLATED) as z:
+    part = build_dir / f".{spec.name}.fmu.part"
+    with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
         z.write(md, "modelDescription.xml")
         z.write(so, f"binaries/linux64/{spec.name}.so")
         for p in sorted(src.iterdir()):
@@ -165,4 +187,119 @@ def build_fmu(spec: ModelSpec, build_dir, extra_cflags=()) -> Path:
         z.write(doc, "documentation/index.html")
         if spec.heightmap_file:
             z.write(spec.heightmap_file, f"resources/{RESOURCE_NAME}")
+    os.replace(part, fmu)
     return fmu
+
+
+# ------------------------------------------------------------------------------------------------ build stamps
+
+# what forms an FMU: the packages that form the model and write the FMU (not run/, reports/ or the CLI, whose
+# changes leave every FMU as it was), the hand-written C and the model-description writer
+_STAMP_SOURCES = ("python/cedra/contract.py", "python/cedra/__init__.py", "python/cedra/mechanics",
+                  "python/cedra/rover", "python/cedra/models", "python/cedra/fmu", "fmu_src",
+                  "modelDescription/generate.py", "pyproject.toml")
+STAMP_SUFFIX = ".stamp"
+
+
+@lru_cache(maxsize=None)
+def sources_digest() -> str:
+    """The hash of every file that forms an FMU, of the CasADi and FMPy versions and of the compiler."""
+    import fmpy
+    h = hashlib.sha256()
+    for entry in _STAMP_SOURCES:
+        root = REPO_ROOT / entry
+        files = [root] if root.is_file() else sorted(p for p in root.rglob("*") if p.is_file()
+                                                      and "__pycache__" not in p.parts and p.suffix != ".pyc")
+        for f in files:
+            h.update(str(f.relative_to(REPO_ROOT)).encode() + b"\0" + f.read_bytes() + b"\0")
+    h.update(f"casadi {ca.__version__} fmpy {fmpy.__version__} python {sys.version_info[:2]}".encode())
+    h.update(compiler_identity(CC).encode())
+    return h.hexdigest()
+
+
+def _scene_text(scene) -> str:
+    """A scene's content, without where its file lives (the same scene from two paths is one build)."""
+    from dataclasses import replace
+    d = {f.name: getattr(scene, f.name) for f in fields(scene) if f.name != "path"}
+    if scene.options.heightmap:           # the grid's bytes are in the key (build_key), its directory is not
+        d["options"] = replace(scene.options, heightmap=Path(scene.options.heightmap).name)
+    return repr(sorted(d.items()))
+
+
+def build_key(target, extra_cflags=()) -> str:
+    """The key an FMU of target (a controller's name or a Scene) is built under: sources_digest, the scene's
+    content and its heightmap grid's bytes, the extra flags."""
+    h = hashlib.sha256(sources_digest().encode())
+    if isinstance(target, str):
+        h.update(b"controller " + target.encode())
+    else:
+        h.update(_scene_text(target).encode())
+        if target.options.heightmap:
+            h.update(Path(target.options.heightmap).read_bytes())
+    h.update(repr((CFLAGS, HAND_WRITTEN_CFLAGS, GENERATED_CFLAGS_RELAX, LARGE_FUNCTION_BYTES, LARGE_FUNCTION_FLAGS,
+                   tuple(extra_cflags))).encode())
+    return h.hexdigest()
+
+
+def _file_sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def stamp_matches(fmu: Path, key: str) -> bool:
+    """Whether fmu exists and its stamp says it was built under key and is still that file."""
+    stamp = Path(str(fmu) + STAMP_SUFFIX)
+    try:
+        data = json.loads(stamp.read_text())
+        return data.get("key") == key and data.get("fmu_sha256") == _file_sha(fmu)
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def write_stamp(fmu: Path, key: str) -> None:
+    stamp = Path(str(fmu) + STAMP_SUFFIX)
+    tmp = stamp.with_name(stamp.name + ".part")
+    tmp.write_text(json.dumps({"key": key, "fmu_sha256": _file_sha(fmu)}) + "\n")
+    os.replace(tmp, stamp)
+
+
+def _resolve(target):
+    """(the FMU's name, the Scene or controller name, a function forming its ModelSpec) of a shipped scene's or
+    controller's name, a scene file's path or a Scene."""
+    from cedra.models.controller import CONTROLLERS, shipped_controller
+    from cedra.models.scene import Scene, load, load_shipped
+    if isinstance(target, Scene):
+        return target.name, target, target.spec
+    target = str(target)
+    if target in CONTROLLERS:
+        return target, target, lambda: shipped_controller(target)
+    scene = load(target) if target.endswith(".toml") else load_shipped(target)
+    return scene.name, scene, scene.spec
+
+
+def fmu_state(target, build_dir, extra_cflags=()) -> tuple[Path, str, str]:
+    """(the FMU's path, its build key, "up to date" / "missing" / "stale") for target in build_dir."""
+    name, what, _ = _resolve(target)
+    path = Path(build_dir) / f"{name}.fmu"
+    key = build_key(what, extra_cflags)
+    if not path.exists():
+        return path, key, "missing"
+    return path, key, "up to date" if stamp_matches(path, key) else "stale"
+
+
+def ensure_fmu(target, build_dir, extra_cflags=(), log=None, jobs: int | None = None) -> Path:
+    """<build_dir>/<name>.fmu of target (a shipped scene's or controller's name, a scene file's path, or a Scene),
+    built first when it is missing or stale (its stamp does not match today's sources, scene and flags); log (a
+    callable taking a line, default: print to stderr) is told when and why it builds."""
+    name, what, form = _resolve(target)
+    path, key, state = fmu_state(what, build_dir, extra_cflags)
+    if state == "up to date":
+        return path
+    say = log or (lambda line: print(line, file=sys.stderr, flush=True))
+    say(f"{name}: building {path} ({state})")
+    t0 = time.perf_counter()
+    stats = CompileStats()
+    out = build_fmu(form(), build_dir, extra_cflags, jobs=jobs, stats=stats)
+    write_stamp(out, key)
+    say(f"{name}: built in {time.perf_counter() - t0:.1f} s ({len(stats.compiled)} files compiled, "
+        f"{len(stats.cached)} from the cache)")
+    return out

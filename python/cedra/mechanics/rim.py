@@ -58,7 +58,12 @@ def _library(code: str, on_heightmap: bool = False, refine: bool = False) -> Pat
     if on_heightmap:
         hm = heightmap.host_library()
         extra += [str(hm), f"-Wl,-rpath,{hm.parent}"]
-    key = rim + code.encode() + " ".join(extra).encode()
+    # the key names the heightmap's library by its file name (a hash of its source), not its directory: the same
+    # model formed in two checkouts gets the same library name, and the GUID (which hashes it) stays the same
+    named = [f"-DCEDRA_HEIGHTMAP={int(on_heightmap)}", f"-DCEDRA_RIM_REFINE={int(refine)}"]
+    if on_heightmap:
+        named.append(hm.name)
+    key = rim + code.encode() + " ".join(named).encode()
     lib = HOST_DIR / f"libcedra_rim_{hashlib.sha256(key).hexdigest()[:16]}.so"
     if not lib.exists():
         HOST_DIR.mkdir(parents=True, exist_ok=True)

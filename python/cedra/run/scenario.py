@@ -25,21 +25,15 @@ class ScenarioError(ValueError):
 
 
 def fmu(name: str, build_dir="build") -> Path:
-    """build/<name>.fmu for a shipped scene or controller, built there first if it is missing (a scene's variant:
-    cedra.run.sweep.variant_fmu)."""
-    path = Path(build_dir) / f"{name}.fmu"
-    if path.exists():
-        return path
-    from cedra.models.controller import CONTROLLERS, shipped_controller
-    from cedra.fmu.packaging import build_fmu
-    from cedra.models.scene import load_shipped, shipped
-    if name in CONTROLLERS:
-        spec = shipped_controller(name)
-    elif name in shipped():
-        spec = load_shipped(name).spec()
-    else:
+    """build/<name>.fmu for a shipped scene or controller, built there first if it is missing or stale (its build
+    stamp does not match today's sources: cedra.fmu.packaging.ensure_fmu, which says so on stderr); a scene's
+    variant: cedra.run.sweep.variant_fmu."""
+    from cedra.models.controller import CONTROLLERS
+    from cedra.fmu.packaging import ensure_fmu
+    from cedra.models.scene import shipped
+    if name not in CONTROLLERS and name not in shipped():
         raise ScenarioError(f"no FMU {name!r}: not a shipped scene or controller")
-    return build_fmu(spec, build_dir)
+    return ensure_fmu(name, build_dir)
 
 
 def run_loop(loop, label: str, stop_time: float, step: float, commands, record, quiet: bool = False):

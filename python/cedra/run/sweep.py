@@ -662,11 +662,6 @@ def _build(sw: Sweep, build_dir) -> Path:
         return _variant_fmu(sw.target.scene, Path(build_dir) / "variants")
     if sw.target.name in shipped():
         return fmu(sw.target.name, build_dir)
-    # a scene file's FMU, like a variant's, is built once and kept while it is the same build; but a heightmap's
-    # grid is a resource the GUID does not see, and the user may have edited it: such a scene is built every time
-    if sw.target.scene.options.heightmap:
-        from cedra.fmu.packaging import build_fmu
-        return build_fmu(sw.target.scene.spec(), build_dir)
     return _variant_fmu(sw.target.scene, Path(build_dir) / "scenes")
 
 
@@ -688,30 +683,10 @@ def variant_fmu(name: str, options: dict, build_dir="build") -> Path:
 
 
 def _variant_fmu(scene, build_dir: Path) -> Path:
-    """<build_dir>/<variant>.fmu, built unless the one there is the same build (_same_build)."""
-    from cedra.fmu.packaging import build_fmu
-    spec = scene.spec()
-    path = build_dir / f"{spec.name}.fmu"
-    return path if _same_build(path, spec) else build_fmu(spec, build_dir)
-
-
-def _same_build(path: Path, spec) -> bool:
-    """Whether the FMU at path is this ModelSpec's (its GUID: the variables and the model functions) from today's
-    hand-written sources (fmu_src), compiled with today's flags (packaging.compile_flags)."""
-    import zipfile
-    import xml.etree.ElementTree as ET
-    from cedra.fmu.packaging import FLAGS_FILE, FMU_SRC, _generator, flags_text
-    try:
-        with zipfile.ZipFile(path) as z:
-            guid = ET.fromstring(z.read("modelDescription.xml")).get("guid")
-            sources = [n for n in z.namelist() if n.startswith("sources/")]
-            sizes = {Path(n).name: z.getinfo(n).file_size for n in sources if n.endswith(".c")}
-            return guid == _generator().spec_guid(spec) and all(
-                z.read(name) == (FMU_SRC / Path(name).name).read_bytes() for name in sources
-                if (FMU_SRC / Path(name).name).is_file()) and \
-                z.read(f"sources/{FLAGS_FILE}").decode() == flags_text(sizes)
-    except (OSError, KeyError, zipfile.BadZipFile, ET.ParseError):
-        return False
+    """<build_dir>/<variant>.fmu, built unless its build stamp says it is this scene's (its content, its heightmap's
+    grid) from today's sources and flags (cedra.fmu.packaging.ensure_fmu)."""
+    from cedra.fmu.packaging import ensure_fmu
+    return ensure_fmu(scene, build_dir)
 
 
 # the convergence checks: flag -> (the solver parameter it sets, the table's suffix). The adaptive solvers'

@@ -1,0 +1,190 @@
+"""Compiling C with a cache that remembers: one object per translation unit, content-addressed.
+
+    compile_objects(jobs, obj_dir, workers) -> [object paths]     (jobs: CompileJob(source, flags, include_dir))
+
+An object's key is the SHA-256 of what decides its bytes: the compiler's identity (its --version text and target),
+the flags, the translation unit's own text and the text of every local header it includes ("..." includes found in
+its include directory, recursively). System headers belong to the compiler, whose identity is in the key. Paths
+are not: the same file compiled from two build trees or two checkouts is one entry.
+
+The cache (CEDRA_CACHE, default ~/.cache/cedra; objects/ under it) holds <key>.o and <key>.sha256, the object's
+own SHA-256. An entry whose object does not match its recorded hash (truncated, corrupted, or the sidecar missing)
+is removed and compiled again, never linked. Entries are written under a temporary name and renamed into place,
+so two builds that compile the same file at once both end with a whole object.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import subprocess
+import tempfile
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+CC = os.environ.get("CC", "gcc")
+CACHE_ENV = "CEDRA_CACHE"
+_INCLUDE = re.compile(rb'^[ \t]*#[ \t]*include[ \t]*"([^"]+)"', re.M)
+
+
+class CompileError(RuntimeError):
+    pass
+
+
+@dataclass(frozen=True)
+class CompileJob:
+    source: Path                 # the translation unit
+    flags: tuple[str, ...]       # compiler flags (without -c, -o and the include directory)
+    include_dir: Path | None = None
+
+
+@dataclass
+class CompileStats:
+    """What one compile_objects call did: files taken from the cache, files compiled, the compiles' CPU seconds."""
+    cached: list[str] = field(default_factory=list)
+    compiled: list[str] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def cache_dir() -> Path:
+    root = os.environ.get(CACHE_ENV) or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "cedra"
+    return Path(root) / "objects"
+
+
+def run(cmd, cwd=None) -> str:
+    """Run a compiler or linker command; CompileError with its output when it fails."""
+    return run_timed(cmd, cwd)[0]
+
+
+def run_timed(cmd, cwd=None) -> tuple[str, float]:
+    """(stdout, the command's own CPU seconds: user + system of the child, from its rusage, so that commands run
+    on several threads at once are each charged their own)."""
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        p = subprocess.Popen([str(c) for c in cmd], cwd=cwd, stdout=out, stderr=err)
+        _, status, usage = os.wait4(p.pid, 0)
+        p.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read().decode(errors="replace"), err.read().decode(errors="replace")
+    if p.returncode != 0:
+        raise CompileError(f"{' '.join(map(str, cmd))} failed (rc {p.returncode}):\n{stdout}{stderr}")
+    return stdout, usage.ru_utime + usage.ru_stime
+
+
+@lru_cache(maxsize=None)
+def compiler_identity(cc: str = CC) -> str:
+    """The compiler's version text and target: a new compiler (or another one) gives other keys."""
+    return run([cc, "--version"]) + run([cc, "-dumpmachine"])
+
+
+def _unit_text(source: Path, include_dir: Path | None) -> bytes:
+    """The translation unit's text and, in include order, every local header it reaches (each once)."""
+    seen, parts = set(), []
+
+    def add(path: Path):
+        data = path.read_bytes()
+        parts.append(path.name.encode() + b"\0" + data + b"\0")
+        for m in _INCLUDE.finditer(data):
+            name = m.group(1).decode()
+            for d in (path.parent, include_dir):
+                h = d / name if d is not None else None
+                if h is not None and h.is_file() and h.resolve() not in seen:
+                    seen.add(h.resolve())
+                    add(h)
+                    break
+
+    seen.add(source.resolve())
+    add(source)
+    return b"".join(parts)
+
+
+def object_key(job: CompileJob, cc: str = CC) -> str:
+    h = hashlib.sha256()
+    h.update(compiler_identity(cc).encode() + b"\0")
+    h.update("\0".join(job.flags).encode() + b"\0")
+    h.update(_unit_text(Path(job.source), job.include_dir))
+    return h.hexdigest()
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def cached_object(key: str, root: Path | None = None) -> Path | None:
+    """The cache's object for key if it is whole (its bytes match the recorded hash); a damaged entry is removed."""
+    root = root or cache_dir()
+    obj, sha = root / f"{key}.o", root / f"{key}.sha256"
+    if not obj.is_file():
+        return None
+    try:
+        whole = sha.is_file() and sha.read_text().strip() == _sha256(obj)
+    except OSError:
+        whole = False
+    if not whole:
+        for p in (obj, sha):
+            try:
+                p.unlink()
+            except FileNotFoundError:
+                pass
+        return None
+    return obj
+
+
+def compile_object(job: CompileJob, cc: str = CC, root: Path | None = None) -> tuple[Path, bool, float]:
+    """(the object in the cache, whether it was compiled now, the compile's CPU seconds)."""
+    root = root or cache_dir()
+    key = object_key(job, cc)
+    hit = cached_object(key, root)
+    if hit is not None:
+        return hit, False, 0.0
+    root.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f"{key}.", suffix=".o.tmp", dir=root)
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        inc = ["-I", str(job.include_dir)] if job.include_dir is not None else []
+        _, cpu = run_timed([cc, *job.flags, *inc, "-c", str(job.source), "-o", str(tmp)])
+        digest = _sha256(tmp)
+        sha_tmp = tmp.with_suffix(".sha.tmp")
+        sha_tmp.write_text(digest + "\n")
+        os.replace(tmp, root / f"{key}.o")         # the object first: a sidecar never names a missing object
+        os.replace(sha_tmp, root / f"{key}.sha256")
+    finally:
+        for p in (tmp, tmp.with_suffix(".sha.tmp")):
+            if p.exists():
+                p.unlink()
+    return root / f"{key}.o", True, cpu
+
+
+_CPU_LOCK = threading.Lock()
+
+
+def compile_objects(jobs: list[CompileJob], obj_dir: Path, workers: int | None = None, cc: str = CC,
+                    stats: CompileStats | None = None) -> list[Path]:
+    """Every job's object copied into obj_dir (<source stem>.o), in jobs' order: from the cache where it holds the
+    object, compiled (largest source first, `workers` at a time) where it does not."""
+    obj_dir = Path(obj_dir)
+    obj_dir.mkdir(parents=True, exist_ok=True)
+    workers = max(1, workers or os.cpu_count() or 1)
+    order = sorted(range(len(jobs)), key=lambda k: -Path(jobs[k].source).stat().st_size)
+    results: dict[int, Path] = {}
+
+    def one(k):
+        job = jobs[k]
+        obj, fresh, cpu = compile_object(job, cc)
+        out = obj_dir / (Path(job.source).stem + ".o")
+        out.write_bytes(obj.read_bytes())
+        if stats is not None:
+            with _CPU_LOCK:
+                (stats.compiled if fresh else stats.cached).append(Path(job.source).name)
+                if fresh:
+                    stats.seconds[Path(job.source).name] = cpu
+        return k, out
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for k, out in pool.map(one, order):
+            results[k] = out
+    return [results[k] for k in range(len(jobs))]
