@@ -40,8 +40,8 @@ def test_site_builds_without_warnings_and_its_reference_equals_every_built_fmu(t
                        capture_output=True, text=True, cwd=REPO, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "WARNING" not in r.stderr, r.stderr
-    for page in ("index", "getting-started", "fmu", "model", "equations", "scenes", "rigid-contact", "solvers",
-                 "reports", "scenarios", "benchmarks", "reliability", "developing", "api", "changelog",
+    for page in ("index", "getting-started", "fmu", "model", "model-studies", "equations", "scenes", "rigid-contact",
+                 "solvers", "reports", "scenarios", "benchmarks", "reliability", "developing", "api", "changelog",
                  "reference/index", "reference/bump2d", "reference/drive3d", "reports/figures"):
         assert (out / f"{page}.html").exists(), page
     _reference_equals_built_fmus(REPO / "docs" / "reference", fmus)
