@@ -224,3 +224,41 @@ def test_guide_pages_speak_of_the_product_not_of_its_log():
              for p in pages for k, line in enumerate(p.read_text().splitlines(), 1)
              for m in LOG_WORDING_RE.finditer(line)]
     assert not found, "\n".join(found)
+
+
+# A comment naming a repository path (fmu_src/x.c, python/cedra/.../x.py, tests/x.py, docs/x.md, tools/.../x.c,
+# examples/..., modelDescription/...) names a file that exists.
+REPO_PATH = re.compile(r"(?<![\w./-])((?:fmu_src|python/cedra|tests|docs|tools|examples|modelDescription)/"
+                       r"[\w./-]*\w\.(?:c|h|py|md|toml))\b")
+COMMENTED = [("fmu_src", "*.c"), ("fmu_src", "*.h"), ("tools", "**/*.c"), ("python/cedra", "**/*.py")]
+
+
+def _comments(p: Path) -> list[tuple[int, str]]:
+    """(line number, text) of the comments of a C or Python file: C's /* */ and // comments; Python's # comments and
+    string literals (docstrings)."""
+    text = p.read_text()
+    if p.suffix == ".py":
+        import io
+        import tokenize
+        return [(tok.start[0], tok.string) for tok in tokenize.generate_tokens(io.StringIO(text).readline)
+                if tok.type in (tokenize.COMMENT, tokenize.STRING)]
+    out = []
+    for m in re.finditer(r"/\*.*?\*/|//[^\n]*", text, re.S):
+        out.append((text.count("\n", 0, m.start()) + 1, m.group(0)))
+    return out
+
+
+def test_paths_named_in_comments_exist():
+    stale, named = [], 0
+    for top, pattern in COMMENTED:
+        for p in sorted((REPO / top).glob(pattern)):
+            if "cache" in p.relative_to(REPO).parts:
+                continue
+            for line, comment in _comments(p):
+                for m in REPO_PATH.finditer(comment):
+                    named += 1
+                    if not (REPO / m.group(1)).exists():
+                        k = line + comment.count("\n", 0, m.start())
+                        stale.append(f"{p.relative_to(REPO)}:{k}: {m.group(1)}")
+    assert named > 20          # the pattern finds the paths the comments name
+    assert not stale, "\n".join(stale)
