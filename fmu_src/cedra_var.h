@@ -1,4 +1,4 @@
-/* One row of the FMU's variable table (generated into cedra_vars.h from python/cedra/variables.py). */
+/* One row of the FMU's variable table (generated into cedra_vars.h from python/cedra/fmu/variables.py). */
 #ifndef CEDRA_VAR_H
 #define CEDRA_VAR_H
 

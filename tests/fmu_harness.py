@@ -1,7 +1,9 @@
-"""Test harness for the FMU machinery: the toy FMU built once per session, and an FMPy FMU2Slave wrapper that
-records the FMU's log messages and turns fmpy's exceptions into statuses."""
+"""Test harness for the FMU machinery: the toy FMU built once per session, an FMPy FMU2Slave wrapper that
+records the FMU's log messages and turns fmpy's exceptions into statuses, and copies of an FMU with an edited
+modelDescription.xml."""
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 from fmpy import extract, read_model_description
@@ -29,6 +31,20 @@ def shipped_fmu(name: str, tmp_path_factory) -> Path:
         spec = shipped_controller(name) if name in CONTROLLERS else load_shipped(name).spec()
         _BUILT[name] = Path(build_fmu(spec, tmp_path_factory.mktemp(name)))
     return _BUILT[name]
+
+
+def rewrite_md(fmu: Path, out: Path, edit) -> Path:
+    """Copy the FMU to `out` with its modelDescription.xml passed through edit(root) (lxml, in place)."""
+    from lxml import etree
+    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            data = zin.read(item.filename)
+            if item.filename == "modelDescription.xml":
+                root = etree.fromstring(data)
+                edit(root)
+                data = etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
+            zout.writestr(item, data)
+    return out
 
 
 def toy_fmu(tmp_path_factory) -> Path:

@@ -21,9 +21,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from lxml import etree
-
 from cedra.fmu import checks
+from fmu_harness import rewrite_md
 
 POW2_STEP = 2.0 ** -7        # 7 812 500 ns: libcosim and FMPy hand the FMU bit-identical t and h
 DECIMAL_STEP = 0.01          # FMPy's h = t_{k+1} - t_k carries round-off here
@@ -65,19 +64,6 @@ def fmu(tmp_path_factory) -> Path:
 def md(fmu):
     from fmpy import read_model_description
     return read_model_description(str(fmu), validate=False)
-
-
-def _rewrite_md(fmu: Path, out: Path, edit) -> Path:
-    """Copy the FMU to `out` with its modelDescription.xml passed through edit(root) (lxml, in place)."""
-    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zout:
-        for item in zin.infolist():
-            data = zin.read(item.filename)
-            if item.filename == "modelDescription.xml":
-                root = etree.fromstring(data)
-                edit(root)
-                data = etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
-            zout.writestr(item, data)
-    return out
 
 
 def _agree(a: dict, b: dict, names: list[str], tol: float) -> list[str]:
@@ -169,7 +155,7 @@ def _drop_one_output(root):
 
 
 def test_vdmcheck_and_fmpy_catch_broken_outputs(fmu, tmp_path):
-    bad = _rewrite_md(fmu, tmp_path / "broken_outputs.fmu", _drop_one_output)
+    bad = rewrite_md(fmu, tmp_path / "broken_outputs.fmu", _drop_one_output)
     ok, lines = checks.vdmcheck(bad)
     assert not ok
     assert any(ln.startswith("validOutputs:") for ln in checks.vdmcheck_errors(lines)), lines
@@ -202,7 +188,7 @@ def test_roundtrip_catches_swapped_value_references(fmu, md, tmp_path):
             sa.set("valueReference", vb)
             sb.set("valueReference", va)
         names = {a.name, b.name}
-    bad = _rewrite_md(fmu, tmp_path / "swapped_vrs.fmu", edit)
+    bad = rewrite_md(fmu, tmp_path / "swapped_vrs.fmu", edit)
     mismatches = checks.start_value_roundtrip(bad)
     assert {m.split(" ")[0] for m in mismatches} == names, mismatches
     # ... while neither checker sees anything wrong with the swapped table
@@ -213,7 +199,7 @@ def test_libcosim_failure_raises_with_stderr(fmu, tmp_path):
     # a modelIdentifier with no binaries/linux64/<id>.so: libcosim fails (or aborts) in the subprocess
     def edit(root):
         root.find("CoSimulation").set("modelIdentifier", "no_such_model")
-    bad = _rewrite_md(fmu, tmp_path / "wrong_identifier.fmu", edit)
+    bad = rewrite_md(fmu, tmp_path / "wrong_identifier.fmu", edit)
     with pytest.raises(checks.CheckerFailed, match="libcosim run failed"):
         checks.libcosim_run(bad, POW2_STEP, POW2_STEP * 4)
 

@@ -1,4 +1,4 @@
-"""Command line: python -m cedra build|simulate|compare|bench|report|fuzz|sweep|watch|optimize ..."""
+"""Command line: python -m cedra build|simulate|compare|bench|report|check|fuzz|sweep|watch|optimize ..."""
 from __future__ import annotations
 
 import argparse
@@ -146,6 +146,27 @@ def cmd_optimize(args):
     return optimize.main(args)
 
 
+def cmd_check(args):
+    from cedra.fmu import checks
+    bad = [why for why in map(checks.not_an_fmu, args.fmus) if why]
+    if bad:                         # every path is looked at before any check runs
+        for why in bad:
+            print(f"error: {why}", file=sys.stderr)
+        return 2
+    failed = False
+    for path in args.fmus:
+        results = checks.check_fmu(path)
+        print(f"{path}: " + ", ".join(f"{name} {'FAILED' if problems else 'ok'}"
+                                       for name, problems in results.items()), flush=True)
+        for name, problems in results.items():
+            if problems:
+                failed = True
+                more = f" (and {len(problems) - 1} more)" if len(problems) > 1 and not args.verbose else ""
+                for line in problems if args.verbose else problems[:1]:
+                    print(f"  {name}: {line}{more}")
+    return 1 if failed else 0
+
+
 def cmd_fuzz(args):
     from cedra.fmu import fuzz
     return fuzz.main(args)
@@ -211,6 +232,10 @@ def main(argv=None):
                    help="defaults --choose: write the choice into the shipped scene files' [solver] tables")
     r.add_argument("--figure", action="append", default=None,
                    help="figures: only this figure (repeatable; cedra.reports.figures lists them)")
+    ch = sub.add_parser("check", help="run the FMU checks (fmpy validate, VDMCheck2, the start value round trip "
+                        "through the binary) on FMUs; exit status 1 if any check fails")
+    ch.add_argument("fmus", nargs="+", metavar="FMU", help=".fmu files (any FMI 2.0 Co-Simulation FMU)")
+    ch.add_argument("-v", "--verbose", action="store_true", help="every problem of a failed check, not the first")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.run.optimize import add_parser as add_optimize_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
@@ -221,7 +246,7 @@ def main(argv=None):
     add_watch_parser(sub)
     args = ap.parse_args(argv)
     commands = {"build": cmd_build, "simulate": cmd_simulate, "compare": cmd_compare, "bench": cmd_bench,
-                "report": cmd_report, "fuzz": cmd_fuzz, "sweep": cmd_sweep, "watch": cmd_watch,
+                "report": cmd_report, "check": cmd_check, "fuzz": cmd_fuzz, "sweep": cmd_sweep, "watch": cmd_watch,
                 "optimize": cmd_optimize}
     return commands[args.cmd](args)
 

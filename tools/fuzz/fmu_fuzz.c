@@ -1,5 +1,5 @@
 /* fmu_fuzz: random FMI 2.0 call sequences against a cedra FMU compiled in (no dlopen), normally under
- * AddressSanitizer + UndefinedBehaviorSanitizer. Built and run by python/cedra/fuzz.py
+ * AddressSanitizer + UndefinedBehaviorSanitizer. Built and run by python/cedra/fmu/fuzz.py
  * (`python -m cedra fuzz <scene|file.fmu>`), which compiles this file with every C file in the FMU's sources/.
  *
  * Modes:

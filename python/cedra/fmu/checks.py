@@ -7,14 +7,16 @@ runtime check that no checker does.
     fmpy_run(fmu, ...)            simulate with FMPy
     recompile_from_sources(fmu)   rebuild binaries/<platform> from sources/ with FMPy's CMake project
     start_value_roundtrip(fmu)    XML start values == what the binary returns for the same value reference
+    check_fmu(fmu)                the verdict checks (CHECKS: validate, vdmcheck, roundtrip) of one FMU, as
+                                  `python -m cedra check FMU ...` runs them
 
 Every function raises CheckerUnavailable when its tool cannot be run at all (no java/mvn, Maven Central not
 reachable, no cmake, libcosimpy not installed): callers (the tests) must treat that as a failure, never a
 skip, because CI reaches the registries the tools come from.
 
-Gaps of the checkers (see shared notes fmi-tools.md): swapped value references, a wrong GUID or a
-modelIdentifier that is not the .so name are invisible to fmpy validate and VDMCheck2; the start value round
-trip catches swapped value references as long as the swapped variables have different start values.
+Gaps of the checkers: swapped value references, a wrong GUID or a modelIdentifier that is not the .so name
+are invisible to fmpy validate and VDMCheck2; the start value round trip catches swapped value references as
+long as the swapped variables have different start values, and a wrong GUID (fmi2Instantiate refuses it).
 
 Step sizes and agreement between libcosim and FMPy (measured, see tests/test_fmu_checkers.py):
 libcosim keeps time in integer nanoseconds and passes t_k = k*step_ns*1e-9 and h = step_ns*1e-9 (h is the
@@ -427,21 +429,44 @@ def start_value_roundtrip(fmu_path, rtol: float = 1e-14, include_approx: bool = 
     differ), wrong start values in the XML and types read through the wrong getter; no checker sees these.
     Variables with initial="approx" are skipped unless include_approx (the FMU may iterate on them during
     initialization). Reals compare with relative tolerance rtol (XML printed with %.17g round-trips exactly;
-    1e-14 allows a shorter printing); Integer, Boolean, String compare exactly."""
+    1e-14 allows a shorter printing); Integer, Boolean, String compare exactly. An FMU that cannot be instantiated
+    or initialized (e.g. a GUID that is not the binary's) gives one problem quoting the FMU's log."""
     from fmpy import extract
-    from fmpy.fmi2 import FMU2Slave
+    from fmpy.fmi1 import calloc, free
+    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
     md = _read_md(fmu_path)
     if md.coSimulation is None:
         raise CheckerFailed("not a Co-Simulation FMU")
+    log: list[str] = []           # the FMU's log messages (unformatted), quoted when a call fails
+
+    def logger(env, name, status, category, message):
+        log.append((message or b"").decode(errors="replace"))
+
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+
+    def failed(call: str, e: Exception) -> str:
+        return f"{call} failed: " + ("; ".join(log) if log else str(e))
+
     with tempfile.TemporaryDirectory(prefix="cedra-roundtrip-") as tmp, _timed("start_value_roundtrip"):
         unzipdir = extract(str(fmu_path), unzipdir=tmp)
         fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
                         modelIdentifier=md.coSimulation.modelIdentifier, instanceName="roundtrip")
-        fmu.instantiate()
+        try:
+            fmu.instantiate(callbacks=callbacks)
+        except Exception as e:   # fmi2Instantiate returned NULL (e.g. a GUID that is not the binary's)
+            fmu.freeLibrary()
+            return [failed("fmi2Instantiate", e)]
         problems: list[str] = []
         try:
-            fmu.setupExperiment(startTime=0.0)
-            fmu.enterInitializationMode()
+            try:
+                fmu.setupExperiment(startTime=0.0)
+                fmu.enterInitializationMode()
+            except Exception as e:
+                return [failed("fmi2SetupExperiment/fmi2EnterInitializationMode", e)]
             for v in md.modelVariables:
                 if v.start is None or (v.initial == "approx" and not include_approx):
                     continue
@@ -465,11 +490,55 @@ def start_value_roundtrip(fmu_path, rtol: float = 1e-14, include_approx: bool = 
                 if bad:
                     problems.append(f"{v.name} (vr {v.valueReference}, {v.type}, {v.causality}): "
                                     f"XML start {want!r}, binary {got!r}")
-        finally:
-            with contextlib.suppress(Exception):
-                fmu.terminate()
+        finally:        # fmi2Terminate is not allowed in initialization mode, fmi2FreeInstance is
             fmu.freeInstance()
     return problems
+
+
+# ------------------------------------------------------------------------------------------- all checks of one FMU
+
+def not_an_fmu(path) -> str | None:
+    """Why `path` cannot be checked as an FMU (no such file, not a zip archive, no modelDescription.xml in it),
+    or None when it can."""
+    path = Path(path)
+    if not path.exists():
+        return f"{path}: no such file"
+    if not path.is_file():
+        return f"{path}: not a file"
+    if not zipfile.is_zipfile(path):
+        return f"{path}: not an FMU (not a zip archive)"
+    with zipfile.ZipFile(path) as z:
+        if "modelDescription.xml" not in z.namelist():
+            return f"{path}: not an FMU (no modelDescription.xml in the archive)"
+    return None
+
+
+def _vdmcheck_problems(fmu_path) -> list[str]:
+    ok, lines = vdmcheck(fmu_path)
+    return [] if ok else (vdmcheck_errors(lines) or lines)
+
+
+# name -> the check: the FMU's problems, [] = passed
+CHECKS = {
+    "validate": fmpy_validate,
+    "vdmcheck": _vdmcheck_problems,
+    "roundtrip": start_value_roundtrip,
+}
+
+
+def check_fmu(fmu_path) -> dict[str, list[str]]:
+    """Every check of CHECKS on one FMU: name -> its problems ([] = passed). A checker that cannot run
+    (CheckerUnavailable) or that fails (CheckerFailed, or the importer raising, e.g. fmi2Instantiate refusing the
+    FMU) fails the check with that reason as its problem: it is never a pass."""
+    out = {}
+    for name, check in CHECKS.items():
+        try:
+            out[name] = list(check(fmu_path))
+        except CheckerUnavailable as e:
+            out[name] = [f"checker unavailable: {e}"]
+        except Exception as e:       # noqa: BLE001  (any crash of the checker or the FMU is that check's failure)
+            out[name] = [f"{type(e).__name__}: {e}"]
+    return out
 
 
 # ------------------------------------------------------------------------------------------------------ compare

@@ -1,4 +1,4 @@
-"""Traction control on the paper's bump (docs/model.md, Controller, mode 2): the plant's friction ratios under the
+"""Traction control on the paper's bump (docs/model-studies.md): the plant's friction ratios under the
 inverse kinematics (mode 1) and traction control (mode 2), the controller's normal-force estimate against the
 plant's wheel[i].Fn, and what a controller sample costs.
 
