@@ -118,8 +118,8 @@ def cmd_sweep(args):
 
 
 def cmd_optimize(args):
-    from cedra.run import optimize
-    return optimize.main(args)
+    from cedra.optimize import command
+    return command.main(args)
 
 
 def cmd_fuzz(args):
@@ -186,7 +186,7 @@ def main(argv=None):
     r.add_argument("--figure", action="append", default=None,
                    help="figures: only this figure (repeatable; cedra.reports.figures lists them)")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
-    from cedra.run.optimize import add_parser as add_optimize_parser
+    from cedra.optimize.command import add_parser as add_optimize_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
     from cedra.run.watch import add_parser as add_watch_parser
     add_fuzz_parser(sub)
