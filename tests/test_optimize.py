@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cedra.run import optimize
-from cedra.run.shooting import interval_jacobian
+from cedra import optimize
+from cedra.optimize import interval_jacobian
 
 REPO = Path(__file__).resolve().parents[1]
 BUILD = REPO / "build"
@@ -126,7 +126,7 @@ def test_the_carried_spin_rates_jacobian_is_the_chain_rules(free_dt, peak):
     by hand) against central differences of its own constraints, at a controller run's nodes toward the bump's
     foot (3 intervals of 0.2 s, the smoothed law): every entry, the time column (free horizon) and the node
     forces' rows (peak_friction) included, and nothing outside the declared pattern."""
-    from cedra.run.shooting import CarriedSpinShooting
+    from cedra.optimize import CarriedSpinShooting
     problem = optimize.load(REPO / "examples" / "optimize" / "bump2d_short_energy.toml")
     dyn = optimize.Dynamics(problem)
     dyn.width = 2e-4
@@ -184,7 +184,7 @@ def test_the_carried_spin_rates_curvature_is_the_lagrangians_own():
     derivatives of lam . g(w), g formed symbolically through the same integrator (a stand-in it can differentiate
     twice: _SpinningPendulum), 4 intervals, a random point and random multipliers."""
     import casadi as ca
-    from cedra.run.shooting import CarriedSpinShooting
+    from cedra.optimize import CarriedSpinShooting
     dyn = _SpinningPendulum()
     n, dt = 4, 0.3
     x0 = np.array([0.3, 0.0, 0.1, 2.0])
@@ -270,7 +270,7 @@ def test_the_optimizers_equations_smooth_the_joint_stops():
     over R_w in radians: with the bogie 1 mrad past its stop the bogie's acceleration differs from the one under the
     FMU's law (width 0); with the bogie well inside its range it is the same."""
     import casadi as ca
-    from cedra.run.optimize import Dynamics, parse
+    from cedra.optimize import Dynamics, parse
     dyn = Dynamics(parse({"scene": "bump2d", "objective": "energy", "margin": -0.5, "interval": 0.2}))
     q_names = dyn.model.q_names
     p = {q.name: dyn.par[k] for k, q in enumerate(dyn.model.params)}
@@ -295,7 +295,7 @@ def test_the_optimizers_contact_forces_are_finite_above_the_ground():
     (depths of -0.07 to -0.15 m at a width of 2e-4 m); a wheel with several contact slots normalizes the sum of
     their forces, which must not divide by that zero norm."""
     import casadi as ca
-    from cedra.run.optimize import Dynamics, parse
+    from cedra.optimize import Dynamics, parse
     dyn = Dynamics(parse({"scene": "bump2d", "objective": "energy", "margin": -0.5, "interval": 0.2}))
     z = dyn.model.q_names.index("z")
     for width in (2e-4, 5e-5):

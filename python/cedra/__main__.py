@@ -142,8 +142,8 @@ def cmd_sweep(args):
 
 
 def cmd_optimize(args):
-    from cedra.run import optimize
-    return optimize.main(args)
+    from cedra.optimize import command
+    return command.main(args)
 
 
 def cmd_check(args):
@@ -237,7 +237,7 @@ def main(argv=None):
     ch.add_argument("fmus", nargs="+", metavar="FMU", help=".fmu files (any FMI 2.0 Co-Simulation FMU)")
     ch.add_argument("-v", "--verbose", action="store_true", help="every problem of a failed check, not the first")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
-    from cedra.run.optimize import add_parser as add_optimize_parser
+    from cedra.optimize.command import add_parser as add_optimize_parser
     from cedra.run.sweep import add_parser as add_sweep_parser
     from cedra.run.watch import add_parser as add_watch_parser
     add_fuzz_parser(sub)

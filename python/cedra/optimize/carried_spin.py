@@ -25,23 +25,14 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from cedra.run.oracle import NumpyFunction, hess_lag_io
-
-
-def interval_jacobian(F: ca.Function, nx: int, npar: int) -> ca.Function:
-    """d xf / d (x0, p) of one shooting interval F(x0, p) -> xf, as one nx x (nx + npar) matrix."""
-    x, p = ca.MX.sym("x", nx), ca.MX.sym("p", npar)
-    return ca.Function("interval_jacobian", [x, p], [ca.jacobian(F(x0=x, p=p)["xf"], ca.vertcat(x, p))])
-
-
-def mapped(f: ca.Function, count: int, threads: int) -> ca.Function:
-    """f evaluated at `count` points (columns) at once, on `threads` threads (serially with one)."""
-    return f.map(count, "thread", threads) if threads > 1 else f.map(count, "serial")
+from cedra.optimize.numpy_function import NumpyFunction, hess_lag_io
+from cedra.optimize.shooting import interval_jacobian, mapped
 
 
 class CarriedSpinShooting:
-    """The constraints of the carried-spin transcription for n intervals of the Dynamics `dyn` (cedra.run.optimize)
-    from the full shooting state x0, at the smoothing width dyn.width when the functions are formed."""
+    """The constraints of the carried-spin transcription for n intervals of the Dynamics `dyn`
+    (cedra.optimize.dynamics) from the full shooting state x0, at the smoothing width dyn.width when the functions
+    are formed."""
 
     def __init__(self, dyn, x0, n: int, dt: float, tol: float, goal_x: float, free_dt: bool, peak: bool,
                  threads: int = 1):
@@ -252,6 +243,16 @@ class CarriedSpinShooting:
     def jac_g(self) -> ca.Function:
         """nlpsol's jac_g option: (x, p) -> (g, jac_g_x)."""
         return self.callbacks[1]
+
+
+def carried_constraints(shooting: CarriedSpinShooting, n: int, peak: bool):
+    """The decisions w, (w, U, dt, s, constraints, lower bounds, upper bounds) as shooting.lifted_constraints gives
+    them, for the carried spin rates: the nodes hold the body and joint states."""
+    w = ca.MX.sym("w", shooting.nw)
+    U = ca.reshape(w[shooting.u_at:shooting.u_at + 4 * n], 4, n)
+    lbg = [np.zeros(shooting.nb * n), [0.0]] + ([np.full(8 * n, -np.inf)] if peak else [])
+    ubg = [np.zeros(shooting.nb * n), [np.inf]] + ([np.zeros(8 * n)] if peak else [])
+    return w, U, w[-2], w[-1], [shooting.constraint(w)], lbg, ubg
 
 
 class _Constraints(NumpyFunction):
