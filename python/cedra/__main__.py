@@ -31,7 +31,7 @@ def _build_one(name: str, out: str, jobs: int) -> dict:
 
 def cmd_build(args):
     import os
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, as_completed
     from cedra.fmu import build_report
     from cedra.fmu.packaging import fmu_state
     from cedra.models.controller import CONTROLLERS
@@ -71,7 +71,7 @@ def cmd_build(args):
     if order:
         with ProcessPoolExecutor(max_workers=procs) as pool:
             futures = [pool.submit(_build_one, name, args.out, threads) for name in order]
-            for f in futures:
+            for f in as_completed(futures):          # a progress line per FMU as it is done
                 r = f.result()
                 rows.append(r)
                 print(f"{r['fmu']}: {r['path']} (model {r['model_s']:.1f} s, C code and compile {r['code_s']:.1f} s: "

@@ -52,6 +52,10 @@ HAND_WRITTEN_CFLAGS = ["-O3"]
 # CasADi's straight-line code (rubble3d's whole model at 9.8 MB: 188 s -> 97 s to build, +4 % CPU of its run).
 LARGE_FUNCTION_BYTES = 3_000_000
 LARGE_FUNCTION_FLAGS = ["-O1"]
+# The functions only fmi2ExitInitializationMode calls (the settle's Newton: a few dozen evaluations per run) are
+# compiled at -O1 whatever their size: no step of a run evaluates them, and -O2 costs several times the compile
+# (stairs3d's cedra_settle, 2.2 MB of C: 68.5 s at -O2, 13.4 s at -O1, CPU seconds of gcc 12).
+INIT_ONLY = ("cedra_settle.c", "cedra_guess.c")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 # the hand-written headers of each kind of block (the C files: modelDescription/generate.py HAND_WRITTEN_C)
 HAND_WRITTEN_H = {
@@ -114,7 +118,7 @@ def compile_flags(file_name: str, size: int, extra_cflags=()) -> list[str]:
     own = HAND_WRITTEN_CFLAGS
     if is_generated(file_name):
         own = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="]
-        if size > LARGE_FUNCTION_BYTES:
+        if size > LARGE_FUNCTION_BYTES or file_name in INIT_ONLY:
             own += LARGE_FUNCTION_FLAGS
     return CFLAGS + own + list(extra_cflags)
 
@@ -237,7 +241,7 @@ def build_key(target, extra_cflags=()) -> str:
         if target.options.heightmap:
             h.update(Path(target.options.heightmap).read_bytes())
     h.update(repr((CFLAGS, HAND_WRITTEN_CFLAGS, GENERATED_CFLAGS_RELAX, LARGE_FUNCTION_BYTES, LARGE_FUNCTION_FLAGS,
-                   tuple(extra_cflags))).encode())
+                   INIT_ONLY, tuple(extra_cflags))).encode())
     return h.hexdigest()
 
 

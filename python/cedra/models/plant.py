@@ -116,7 +116,7 @@ class CedraModel:
         """symbolic_rim: a heightmap scene's rim search formed symbolically instead of the C search (the
         reference the tests compare the C search against; see terrain.Terrain). smooth_contact: the compliant law's
         smoothed form (contact.compliant_law) with its width the free symbol contact_width, for the optimizer's
-        own equations (cedra.run.optimize); no FMU is formed with it."""
+        own equations (cedra.optimize); no FMU is formed with it."""
         if opt.contact not in ("compliant", "rigid"):
             raise ValueError(f"unknown contact model {opt.contact!r} (compliant or rigid)")
         if opt.drives and opt.locked_wheels:
@@ -159,6 +159,7 @@ class CedraModel:
         # rigid contact: every contact the glue's constrained solve sees, in order (the wheels' contact slots, then
         # the collision points): its frame velocity vc, gap and force symbol lam (Fx, Fy, Fn in its frame)
         self.rigid_contacts = []
+        self.n_free_point_forces = len(self.kane.point_forces)     # gravity's; the wheels' contact forces follow
         self.contacts = [self._wheel_contact(wh) for wh in self.rover.wheels]
         self.chassis = self._chassis_contacts() if opt.chassis else []
         # rigid: the contact forces, an input of cedra_out (the glue's solution), as the compliant law's are
@@ -533,8 +534,16 @@ class CedraModel:
                 names += [f"wheel[{k + 1}] drive upper edge", f"wheel[{k + 1}] drive lower edge"]
         return s, hold, hold_now, names
 
-    def functions(self, one=True) -> dict[str, ca.Function]:
-        """The contract's functions; one=False: without the one-maximum form (_contract)."""
+    @property
+    def has_parts(self) -> bool:
+        """Whether cedra_f and cedra_rjac are composed from parts (cedra.models.parts): the FMU's compliant law
+        (the rigid model's contact forces are the glue's; the optimizer's smoothed law and the symbolic search are
+        reference forms)."""
+        return not self.rigid and self.contact_width is None and not self.symbolic_rim
+
+    def functions(self, one=True, parts=True) -> dict[str, ca.Function]:
+        """The contract's functions; one=False: without the one-maximum form (_contract); parts=False: cedra_f and
+        cedra_rjac in the monolithic form (the reference the parts are tested against)."""
         q, u, par, inp = self.q, self.u, self.par, self.inp
         n = q.numel()
         z = ca.SX.sym("z", 1)
@@ -582,7 +591,12 @@ class CedraModel:
             "cedra_settle": self._contract("cedra_settle", [q, inp, par], [res, jac], True, one),
             "cedra_guess": _function("cedra_guess", [q, inp, par], [self.guess()]),
             "cedra_check": _function("cedra_check", [q, u, inp, par], [self.check()]),
-        } | terrain_functions(self.terrain)
+        } | terrain_functions(self.terrain) | (self.parts.functions() if parts and self.has_parts else {})
+
+    @cached_property
+    def parts(self):
+        from cedra.models.parts import ModelParts
+        return ModelParts(self)
 
     def work_description(self):
         if not self.opt.drives:

@@ -84,7 +84,7 @@ class Scene:
         return s
 
 
-# The checks of a file's values (scene files here, optimization problem files in cedra.run.optimize): each fails
+# The checks of a file's values (scene files here, optimization problem files in cedra.optimize.problem): each fails
 # with `error` (SceneError by default) saying "<path>: key '<key>': <reason>".
 def fail(path, key, reason, error=None):
     raise (error or SceneError)(f"{path}: key '{key}': {reason}")

@@ -37,7 +37,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from cedra.reports.common import SOLVER_CODES, fmu_closed_loop
+from cedra.reports.common import SOLVER_CODES, fmu_closed_loop, fmu_path
 
 SCENES = ("bump2d", "flat3d")
 CFLAGS = ["-O2", "-fPIC", "-shared", "-fno-math-errno"]
@@ -144,7 +144,7 @@ def bench_contact(build, stop_time):
     from cedra.run.simulate import run_bump
     rows = {}
     for label, (name, settings) in CONTACT_RUNS.items():
-        path = build / f"{name}.fmu"
+        path = fmu_path(build, name)
         if not path.exists():
             rows[label] = None
             continue
@@ -266,7 +266,7 @@ def print_controller_cost(build: Path) -> int:
     drive2d on bump2d and the rocker-bogie's rb_drive2d on rb_bump2d."""
     from cedra.reports.traction import MODES, rover_of, run_modes, sample_cost
     plants = ("bump2d", "rb_bump2d")
-    missing = [n for plant in plants for n in (plant, rover_of(plant)[0]) if not (build / f"{n}.fmu").exists()]
+    missing = [n for plant in plants for n in (plant, rover_of(plant)[0]) if not fmu_path(build, n).exists()]
     if missing:
         print(f"\ncontroller cost: {', '.join(f'{build}/{n}.fmu' for n in missing)} not found (python -m cedra build)")
         return 1
@@ -400,7 +400,7 @@ def side_by_side(build: Path, stop_time=SIDE_STOP, dts=MUJOCO_DTS, log=print, qu
             log(f"  ... {label}: {rows[label].cpu:.2f} s CPU")
             progress(len(rows))
     for name in FMU_RUNS:
-        path = Path(build) / f"{name}.fmu"
+        path = fmu_path(build, name)
         ref_label = f"FMU {name} {REFERENCE[0]} (reference)"
         runs = {f"FMU {name}": {}, **{f"FMU {name} {k}": v for k, v in FMU_SETTINGS.items()},
                 ref_label: REFERENCE[1]}

@@ -111,9 +111,8 @@ def mujoco_row(scene, multiccd: bool, stop_time: float) -> Row:
 
 
 def fmu_row(scene, build, stop_time: float) -> Row | None:
-    from pathlib import Path
-    from cedra.reports.common import fmu_closed_loop
-    path = Path(build) / f"{scene.name}.fmu"
+    from cedra.reports.common import fmu_closed_loop, fmu_path
+    path = fmu_path(build, scene.name)
     if not path.exists():
         return None
     planar = scene.options.dims == "2d"

@@ -491,6 +491,13 @@ def md_table(header, rows) -> str:
 
 
 def fmu_path(build, scene_name) -> Path:
+    """<build>/<scene_name>.fmu; a shipped scene's or drive controller's is built there first when it is missing or
+    stale (cedra.run.scenario.fmu, which says so)."""
+    from cedra.models.controller import CONTROLLERS
+    from cedra.models.scene import shipped
+    if scene_name in CONTROLLERS or scene_name in shipped():
+        from cedra.run.scenario import fmu
+        return fmu(scene_name, build)
     return Path(build) / f"{scene_name}.fmu"
 
 

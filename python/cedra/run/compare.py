@@ -31,9 +31,10 @@ def drift(names, rows):
 def main(build="build", out="out/compare", stop_time=15.0):
     build, out = Path(build), Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    names_c, rows_c, torques, info_c = run_bump(build / "bump2d.fmu", stop_time)
+    from cedra.run.scenario import fmu
+    names_c, rows_c, torques, info_c = run_bump(fmu("bump2d", build), stop_time)
     gaps = [f"wheel[{i}].gap" for i in range(1, 7)]
-    names_r, rows_r, torques_r, info_r = run_bump(build / "bump2d_rigid.fmu", stop_time, extra=gaps)
+    names_r, rows_r, torques_r, info_r = run_bump(fmu("bump2d_rigid", build), stop_time, extra=gaps)
     d = drift(names_r, rows_r)
     with open(out / "compare.csv", "w", newline="") as fh:
         w = csv.writer(fh)

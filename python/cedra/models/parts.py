@@ -1,0 +1,267 @@
+"""The model as parts: the rover's contact-free dynamics, the wheels' kinematics and ONE wheel-contact part, formed
+once and called for each wheel; cedra_f and cedra_rjac composed from them (docs/model.md, The model as parts).
+
+A wheel's contact with the terrain depends on the rover only through the wheel's state
+
+    x_k = [c_k, a_k, v_k, w_k]      (center, axle, center velocity, angular velocity; world, 12 numbers)
+
+and on the contact search's result s_k for that wheel (cedra.mechanics.rim; derivatives never go through the
+search). So the contact part is one function of (x, s, inp, par) giving the wrench at the wheel's center,
+W = [F; T] with F the sum of the slots' forces and T = sum (p_j - c) x F_j, and its Jacobian dW/dx. The rover's
+generalized force from wheel k is J_k' W_k with J_k = d[v_k; w_k]/du (the velocities are linear in u, so J_k is a
+function of q), which equals the sum of the slots' point forces through their partial velocities (the contact
+point's material velocity is v + w x (p - c)). With f0 the contact-free right-hand side,
+
+    f            = f0 + sum_k J_k' W_k
+    d(M a - f)/dq = d(M a - f0 - sum_k J_k' W)/dq |W fixed - sum_k J_k' (dW_k/dx_k) (dx_k/dq)
+    d(M a - f)/du = d(M a - f0)/du                     - sum_k J_k' (dW_k/dx_k) (dx_k/du)
+
+the exact Jacobian by the chain rule. Each wheel picks its own form: with one maximum on its rim (the search says
+so) the one-slot form, else the three-slot form; CasADi's conditional call evaluates only the branch taken. The
+monolithic form (CedraModel.functions(parts=False)) stays as the reference the tests hold the parts to.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+
+from cedra.mechanics import rim
+from cedra.mechanics.contact import compliant_force, compliant_law, contact_geometry, rim_contacts
+from cedra.mechanics.kane import KaneSystem
+
+WHEEL_STATE = 12      # x_k = [center, axle, center velocity, angular velocity]
+WRENCH = 6            # W_k = [force, torque about the center]
+POINT_STATE = 6       # a collision point's x = [position, velocity]
+
+
+def _function(name, ins, outs, names_in=None, names_out=None) -> ca.Function:
+    opts = {"cse": True}
+    if names_in:
+        return ca.Function(name, ins, outs, names_in, names_out, opts)
+    return ca.Function(name, ins, outs, opts)
+
+
+@dataclass
+class WheelContactPart:
+    """The wheel-contact part in its forms: (x, s, inp, par) -> W and -> dW/dx; `one` the one-maximum forms
+    (None where the terrain has one contact per wheel), flag(s) -> 1 where the one-maximum form holds."""
+    wrench: ca.Function
+    wrench_jac: ca.Function
+    one_wrench: ca.Function | None
+    one_wrench_jac: ca.Function | None
+    flag: ca.Function | None
+
+
+class ModelParts:
+    """The parts of a compliant CedraModel and the contract's cedra_f and cedra_rjac composed from them."""
+
+    def __init__(self, model):
+        if model.rigid:
+            raise ValueError("the parts form is the compliant model's (rigid contact keeps the monolithic form)")
+        self.m = model
+        q, u, par, inp = model.q, model.u, model.par, model.inp
+        self.n = q.numel()
+        wheels = model.rover.wheels
+        self.K = len(wheels)
+        # the wheels' states and the search's inputs, functions of the rover's coordinates
+        X = ca.vertcat(*[ca.vertcat(w.center, w.axle, w.velocity, w.omega) for w in wheels])
+        self.kin = _function("cedra_part_kin", [q, u, inp, par], [X] + (
+            [ca.vertcat(*[rim.search_input(w.center, w.axle, model.p["R_w"], model.terrain) for w in wheels])]
+            if model.multi_contact else []))
+        # the contact-free dynamics: Kane's equations without the wheels' contact forces, the wrenches as inputs
+        free = KaneSystem(q, u, model.kane.bodies, model.kane.generalized_forces,
+                          model.kane.point_forces[:model.n_free_point_forces])
+        M, f0 = free.equations()
+        W = ca.SX.sym("W", WRENCH * self.K)
+        J = [ca.jacobian(ca.vertcat(w.velocity, w.omega), u) for w in wheels]
+        fW = f0 + sum((J[k].T @ W[WRENCH * k:WRENCH * (k + 1)] for k in range(self.K)), ca.SX.zeros(self.n, 1))
+        a = ca.SX.sym("a", self.n)
+        r = M @ a - fW
+        self.contact = self._wheel_part()
+        # the chain rule inside the dynamics' own Jacobian, on the structural nonzeros of every factor: dW/dx enters
+        # as an input with the wheel part's sparsity, so the products are straight-line code that shares the
+        # rover's kinematics (its sines and cosines) with the dynamics
+        pattern = self.contact.wrench_jac.sparsity_out(1)
+        dW = [ca.SX.sym(f"dW{k}", pattern) for k in range(self.K)]
+        Xq, Xu = ca.jacobian(X, q), ca.jacobian(X, u)
+        dr_dq, dr_du = ca.jacobian(r, q), ca.jacobian(r, u)
+        for k in range(self.K):
+            rows = slice(WHEEL_STATE * k, WHEEL_STATE * (k + 1))
+            dr_dq -= J[k].T @ (dW[k] @ Xq[rows, :])
+            dr_du -= J[k].T @ (dW[k] @ Xu[rows, :])
+        if model.chassis:
+            self._chassis_parts()
+        self.dyn_f = _function("cedra_part_dyn", [q, u, inp, par, W], [fW, model.power])
+        self.dyn_jac = _function("cedra_part_dyn_jac", [q, u, a, inp, par, W, ca.horzcat(*dW)], [
+            dr_dq, dr_du, ca.jacobian(model.power, q), ca.jacobian(model.power, u)])
+
+    def _wheel_part(self) -> WheelContactPart:
+        """The wheel-contact part, formed once from a symbolic wheel state (the contact law of
+        CedraModel._wheel_contact, summed into the wrench at the center)."""
+        m, p, i_ = self.m, self.m.p, self.m.i
+        x = ca.SX.sym("x", WHEEL_STATE)
+        c, a, v, w = x[0:3], x[3:6], x[6:9], x[9:12]
+        s = ca.SX.sym("s", rim.N_RESULT)
+        if m.multi_contact:
+            geos, _ = rim_contacts(c, a, m.terrain, p["R_w"], s)
+        else:
+            geos = [contact_geometry(c, a, m.terrain, p["R_w"])]
+        F, T = ca.SX.zeros(3, 1), ca.SX.zeros(3, 1)
+        for geo in geos:
+            arm = geo.point - c
+            force = compliant_force(geo, v + ca.cross(w, arm), p["ground_k"], p["ground_d"], i_["mu"], p["v_eps"])[0]
+            F += force
+            T += ca.cross(arm, force)
+        Wk = ca.vertcat(F, T)
+        dW = ca.jacobian(Wk, x)
+        ins = [x, s, m.inp, m.par]
+        res = m.terrain.resolve
+        wrench = _function("cedra_part_wheel", ins, res([Wk], False))
+        # the Jacobian's form gives the wrench too: one call per wheel forms the contact geometry once for both
+        wrench_jac = _function("cedra_part_wheel_jac", ins, res([Wk, dW]))
+        if not m.multi_contact:
+            return WheelContactPart(wrench, wrench_jac, None, None, None)
+        ones = {k: v_ for k, v_ in rim.ONE_MAXIMUM.items()}
+        fixed = [s[k] for k in ones], [ca.SX(v_) for v_ in ones.values()]
+        one = _function("cedra_part_wheel_one", ins, res(ca.substitute([Wk], *fixed), False))
+        # the same sparsity as the full form's (the forms are a conditional call; dW enters the dynamics with it)
+        one_W, one_dW = ca.substitute([Wk, dW], *fixed)
+        one_jac = _function("cedra_part_wheel_one_jac", ins,
+                            [e if k == 0 else ca.project(e, dW.sparsity()) for k, e in enumerate(res([one_W, one_dW]))])
+        flag = 1
+        for k, v_ in ones.items():
+            flag = ca.logic_and(flag, s[k] == v_)
+        return WheelContactPart(wrench, wrench_jac, one, one_jac, _function("cedra_part_wheel_flag", [s], [flag]))
+
+    # ---------------- the composition (MX: each part a call, each wheel's form a conditional call) ----------------
+    def _wheels(self, q, u, inp, par, jac: bool):
+        """Per wheel: its state x_k, and its wrench W_k (jac: also dW_k/dx_k), the search run once per wheel (a 2D
+        wheel and its planar twin meet the terrain alike: one search and one wrench for the pair)."""
+        m, P = self.m, self.contact
+        out = self.kin(q, u, inp, par)
+        X = out[0] if isinstance(out, (list, tuple)) else out
+        S = out[1] if m.multi_contact else None
+        xs, Ws, dWs = [], [], []
+        forms = None
+        if m.multi_contact:
+            forms = (ca.Function.if_else("cedra_part_wheel_forms", P.one_wrench, P.wrench),
+                     ca.Function.if_else("cedra_part_wheel_jac_forms", P.one_wrench_jac, P.wrench_jac))
+        done = {}
+        for k, wh in enumerate(m.rover.wheels):
+            x = X[WHEEL_STATE * k:WHEEL_STATE * (k + 1)]
+            xs.append(x)
+            twin = m.planar_twins.get(wh.index) if m.opt.dims == "2d" else None
+            if twin in done:
+                # 2D: a wheel and its planar twin differ only in their center's Y, and the terrain is constant in Y:
+                # the same wrench about their centers and the same derivative (zero along Y), so it is formed once
+                Ws.append(Ws[done[twin]])
+                if jac:
+                    dWs.append(dWs[done[twin]])
+                continue
+            done[wh.index] = k
+            if m.multi_contact:
+                s = m._rim_search(S[15 * k:15 * (k + 1)])
+                flag = P.flag(s)
+                if jac:
+                    Wk, dWk = forms[1](flag, x, s, inp, par)
+                    Ws.append(Wk)
+                    dWs.append(dWk)
+                else:
+                    Ws.append(forms[0](flag, x, s, inp, par))
+            else:
+                s = ca.MX.zeros(rim.N_RESULT, 1)
+                if jac:
+                    Wk, dWk = P.wrench_jac(x, s, inp, par)
+                    Ws.append(Wk)
+                    dWs.append(dWk)
+                else:
+                    Ws.append(P.wrench(x, s, inp, par))
+        return xs, Ws, dWs
+
+    def functions(self) -> dict[str, ca.Function]:
+        """cedra_f and cedra_rjac under the contract's names and arguments (cedra.contract)."""
+        n = self.n
+        q, u, a = ca.MX.sym("q", n), ca.MX.sym("u", n), ca.MX.sym("a", n)
+        inp, par = ca.MX.sym("inp", self.m.inp.numel()), ca.MX.sym("par", self.m.par.numel())
+        _, Ws, _ = self._wheels(q, u, inp, par, jac=False)
+        f, power = self.dyn_f(q, u, inp, par, ca.vertcat(*Ws))
+        cedra_f = ca.Function("cedra_f", [q, u, inp, par], [f, power])
+        _, Ws, dWs = self._wheels(q, u, inp, par, jac=True)
+        dr_dq, dr_du, dp_dq, dp_du = self.dyn_jac(q, u, a, inp, par, ca.vertcat(*Ws), ca.horzcat(*dWs))
+        cedra_rjac = ca.Function("cedra_rjac", [q, u, a, inp, par], [dr_dq, dr_du, dp_dq, dp_du])
+        fns = {"cedra_f": cedra_f, "cedra_rjac": cedra_rjac}
+        return fns | (self.chassis_functions() if self.m.chassis else {})
+
+    # ---------------- the body's and links' collision points (docs/model.md, Chassis and links) ----------------
+    def _chassis_parts(self):
+        """One point-contact part for every collision point: (x = [p, v], inputs, parameters) -> the compliant
+        law's force on the point F = F_n n + F_t (and dF/dx), the terrain's normal under the point; the points'
+        kinematics with their depths, and the generalized force sum_j w_j J_j' F_j (J_j = dv_j/du, w_j the point's
+        planar weight) with its Jacobian by the chain rule inside it. Only the points that touch (depth > 0) call
+        the part: elsewhere the law is exactly zero, as it is in the monolithic form."""
+        m, p, i_ = self.m, self.m.p, self.m.i
+        q, u, inp, par = m.q, m.u, m.inp, m.par
+        planar = m.opt.dims == "2d"
+        points = [pt for pt in m.rover.collision_points if (pt.planar_weight if planar else 1) != 0]
+        weights = [pt.planar_weight if planar else 1 for pt in points]
+        self.n_points = len(points)
+        x = ca.SX.sym("x", POINT_STATE)
+        pos, vel = x[0:3], x[3:6]
+        h, grad, _ = m.terrain.local(pos[0], pos[1])
+        n = ca.vertcat(-grad[0], -grad[1], 1)
+        n = n / ca.norm_2(n)
+        depth = (h - pos[2]) * n[2]
+        Fn, Ft, _, _ = compliant_law(depth, n, vel, p["ground_k"], p["ground_d"], i_["mu"], p["v_eps"])
+        F = Fn * n + Ft
+        res = m.terrain.resolve
+        self.point_jac = _function("cedra_part_point_jac", [x, inp, par], res([F, ca.jacobian(F, x)]))
+        self.point = _function("cedra_part_point", [x, inp, par], res([F], False))
+        zero = [ca.SX.zeros(self.point_jac.sparsity_out(k)) for k in range(2)]
+        self.point_none = _function("cedra_part_point_none", [x, inp, par], zero)
+        self.point_depth = _function("cedra_part_point_depth", [x, inp, par], res([depth], False))
+        P = ca.vertcat(*[ca.vertcat(pt.position, m.rate(pt.position)) for pt in points])
+        self.point_kin = _function("cedra_part_point_kin", [q, u, par], [P])
+        Fs = ca.SX.sym("F", 3 * self.n_points)
+        pattern = self.point_jac.sparsity_out(1)
+        dF = [ca.SX.sym(f"dF{j}", pattern) for j in range(self.n_points)]
+        Jp = [ca.jacobian(m.rate(pt.position), u) for pt in points]
+        Pq, Pu = ca.jacobian(P, q), ca.jacobian(P, u)
+        Qc = ca.SX.zeros(self.n, 1)
+        for j in range(self.n_points):
+            Qc += weights[j] * (Jp[j].T @ Fs[3 * j:3 * (j + 1)])
+        dQ_dq, dQ_du = ca.jacobian(Qc, q), ca.jacobian(Qc, u)
+        for j in range(self.n_points):
+            rows = slice(POINT_STATE * j, POINT_STATE * (j + 1))
+            dQ_dq += weights[j] * (Jp[j].T @ (dF[j] @ Pq[rows, :]))
+            dQ_du += weights[j] * (Jp[j].T @ (dF[j] @ Pu[rows, :]))
+        self.chassis_dyn = _function("cedra_part_chassis", [q, u, par, Fs], [Qc])
+        self.chassis_dyn_jac = _function("cedra_part_chassis_jac", [q, u, par, Fs, ca.horzcat(*dF)], [dQ_dq, dQ_du])
+
+    def _points(self, q, u, inp, par, jac: bool):
+        """Each collision point's force (jac: and dF/dx), the part called only where the point touches."""
+        P = self.point_kin(q, u, par)
+        touch = ca.Function.if_else("cedra_part_point_touch", self.point_jac, self.point_none)
+        Fs, dFs = [], []
+        for j in range(self.n_points):
+            x = P[POINT_STATE * j:POINT_STATE * (j + 1)]
+            flag = self.point_depth(x, inp, par) > 0
+            if jac:
+                F, dF = touch(flag, x, inp, par)
+                Fs.append(F)
+                dFs.append(dF)
+            else:
+                Fs.append(ca.if_else(flag, self.point(x, inp, par), ca.MX.zeros(3, 1), True))
+        return Fs, dFs
+
+    def chassis_functions(self) -> dict[str, ca.Function]:
+        """cedra_fc and cedra_fcjac under the contract's names and arguments (cedra.contract)."""
+        n = self.n
+        q, u = ca.MX.sym("q", n), ca.MX.sym("u", n)
+        inp, par = ca.MX.sym("inp", self.m.inp.numel()), ca.MX.sym("par", self.m.par.numel())
+        Fs, _ = self._points(q, u, inp, par, jac=False)
+        fc = ca.Function("cedra_fc", [q, u, inp, par], [self.chassis_dyn(q, u, par, ca.vertcat(*Fs))])
+        Fs, dFs = self._points(q, u, inp, par, jac=True)
+        dq, du = self.chassis_dyn_jac(q, u, par, ca.vertcat(*Fs), ca.horzcat(*dFs))
+        fcjac = ca.Function("cedra_fcjac", [q, u, inp, par], [dq, du])
+        return {"cedra_fc": fc, "cedra_fcjac": fcjac}
