@@ -5,7 +5,7 @@ and traction control (ctrl.mode 2: the speed loop's summed torque at one frictio
     python examples/rovers_climb.py          (or: python -m cedra simulate rovers_climb)
 
 The obstacle is the paper's bump (obstacle = 0: plants bump2d and rb_bump2d), step2d's sharp step (obstacle = 1:
-step2d and rb_step2d) or stairs2d's 4 stairs (obstacle = 2: stairs2d and examples/scenes/rb_stairs2d.toml), its
+step2d and rb_step2d) or stairs2d's 4 stairs (obstacle = 2: stairs2d and rb_stairs2d), its
 height terrain_h (the stairs' rise), the ground's mu; each plant with its own controller FMU (drive2d,
 rb_drive2d) at the commanded speed for 15 s. The plants have their drives (the motors' torque-speed envelope clips
 the commands, within +-4 N.m) and chassis contact: the sweeps' variant <scene>_drives_chassis, built into
@@ -17,13 +17,11 @@ report rovers` runs them).
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 SPEED = 0.2                 # m/s
 STOP_TIME = 15.0
-RB_STAIRS = str(Path(__file__).resolve().parent / "scenes" / "rb_stairs2d.toml")     # a scene file, not shipped
 ROVERS = {"CEDRA": ("drive2d", {0: "bump2d", 1: "step2d", 2: "stairs2d"}),
-          "rocker-bogie": ("rb_drive2d", {0: "rb_bump2d", 1: "rb_step2d", 2: RB_STAIRS})}
+          "rocker-bogie": ("rb_drive2d", {0: "rb_bump2d", 1: "rb_step2d", 2: "rb_stairs2d"})}
 MODES = {"equal torques": 0, "inverse kinematics": 1, "traction control": 2}
 KINDS = {0: "bump", 1: "step", 2: "stairs"}
 STAIRS_STEPS = 4            # stairs2d's and rb_stairs2d's
