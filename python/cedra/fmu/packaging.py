@@ -52,10 +52,17 @@ HAND_WRITTEN_CFLAGS = ["-O3"]
 # CasADi's straight-line code (rubble3d's whole model at 9.8 MB: 188 s -> 97 s to build, +4 % CPU of its run).
 LARGE_FUNCTION_BYTES = 3_000_000
 LARGE_FUNCTION_FLAGS = ["-O1"]
-# The functions only fmi2ExitInitializationMode calls (the settle's Newton: a few dozen evaluations per run) are
-# compiled at -O1 whatever their size: no step of a run evaluates them, and -O2 costs several times the compile
-# (stairs3d's cedra_settle, 2.2 MB of C: 68.5 s at -O2, 13.4 s at -O1, CPU seconds of gcc 12).
-INIT_ONLY = ("cedra_settle.c", "cedra_guess.c")
+# The generated functions a run evaluates rarely are compiled at -O1 whatever their size, where -O2 costs several
+# times the compile (CPU seconds of gcc 12 on stairs3d's C):
+# - cedra_settle, cedra_guess: only fmi2ExitInitializationMode (the settle's Newton, a few dozen evaluations);
+#   cedra_settle 68.5 s at -O2, 13.4 s at -O1;
+# - cedra_out: once per communication step (stairs3d: 100 a simulated second against ~5800 of cedra_f);
+#   21.7 s -> 6.1 s;
+# - cedra_fcjac: once per Jacobian, and only while a collision point touches; 22.6 s -> 11.5 s.
+# The CPU of stairs3d's 10 s and bump2d's 15 s main-job runs with cedra_out and cedra_fcjac at -O1: 0.985 and
+# 0.987 of the runs at -O2 (the least of 3 each, the same machine; within its noise). Every generated function at
+# -O1 costs bump2d's run 18 % (cedra_f, cedra_rjac and cedra_switch are the hot ones): they stay at -O2.
+COLD_FUNCTIONS = ("cedra_settle.c", "cedra_guess.c", "cedra_out.c", "cedra_fcjac.c")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 # the hand-written headers of each kind of block (the C files: modelDescription/generate.py HAND_WRITTEN_C)
 HAND_WRITTEN_H = {
@@ -118,7 +125,7 @@ def compile_flags(file_name: str, size: int, extra_cflags=()) -> list[str]:
     own = HAND_WRITTEN_CFLAGS
     if is_generated(file_name):
         own = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="]
-        if size > LARGE_FUNCTION_BYTES or file_name in INIT_ONLY:
+        if size > LARGE_FUNCTION_BYTES or file_name in COLD_FUNCTIONS:
             own += LARGE_FUNCTION_FLAGS
     return CFLAGS + own + list(extra_cflags)
 
@@ -241,7 +248,7 @@ def build_key(target, extra_cflags=()) -> str:
         if target.options.heightmap:
             h.update(Path(target.options.heightmap).read_bytes())
     h.update(repr((CFLAGS, HAND_WRITTEN_CFLAGS, GENERATED_CFLAGS_RELAX, LARGE_FUNCTION_BYTES, LARGE_FUNCTION_FLAGS,
-                   INIT_ONLY, tuple(extra_cflags))).encode())
+                   COLD_FUNCTIONS, tuple(extra_cflags))).encode())
     return h.hexdigest()
 
 
