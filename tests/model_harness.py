@@ -1,8 +1,11 @@
 """Test harness for the symbolic model: a scene's contract functions evaluated numerically, by name."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import casadi as ca
 import numpy as np
+import pytest
 
 from cedra.models.plant import CedraModel
 
@@ -61,3 +64,30 @@ class Built:
                           {"reltol": 1e-10, "abstol": 1e-10, "max_num_steps": 200000})
         X = np.array(I(x0=np.concatenate([q0, u0]))["xf"])
         return t, np.hstack([np.concatenate([q0, u0])[:, None], X])
+
+
+# the FMU outputs that give a scene's coordinates (CEDRA's and the rocker-bogie's)
+OUTPUTS = {"x": "body.x", "y": "body.y", "z": "body.z", "yaw": "body.yaw", "pitch": "body.pitch",
+           "roll": "body.roll", "theta1": "bogie.theta[1]", "theta2": "bogie.theta[2]", "theta4": "fork.theta4",
+           "theta3": "steer.theta[1]", "theta6": "steer.theta[2]", "rho": "rocker.rho", "beta_L": "bogie.beta[1]",
+           "beta_R": "bogie.beta[2]"}
+
+
+def run_coordinates(scene, model, seconds, every=50):
+    """The coordinates (spin angles 0: a wheel is round) every `every` samples of the scene's main run through its
+    shipped FMU (build/; the test skips where it is not built)."""
+    from cedra.run.simulate import run_bump
+    fmu = Path(__file__).resolve().parents[1] / "build" / f"{scene}.fmu"
+    if not fmu.exists():
+        pytest.skip(f"{fmu} is not built (./build.sh)")
+    names, data, _, info = run_bump(fmu, seconds, {}, extra=list(OUTPUTS.values()))
+    assert info["ok"], info["messages"][-2:]
+    col = {n: k for k, n in enumerate(names)}
+    qs = []
+    for row in data[::every]:
+        q = np.zeros(len(model.q_names))
+        for k, nm in enumerate(model.q_names):
+            if nm in OUTPUTS and OUTPUTS[nm] in col:
+                q[k] = row[col[OUTPUTS[nm]]]
+        qs.append(q)
+    return qs

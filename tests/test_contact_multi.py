@@ -258,29 +258,14 @@ def test_shared_penetration_matches_the_reference_rule():
 
 def run_states(scene, seconds):
     """(centers, axles) of every wheel every 0.25 s of the scene's main run (the shipped FMU, build/)."""
-    from pathlib import Path
-    from cedra.run.simulate import run_bump
-    fmu = Path(__file__).resolve().parents[1] / "build" / f"{scene}.fmu"
-    if not fmu.exists():
-        pytest.skip(f"{fmu} is not built (./build.sh)")
+    from model_harness import run_coordinates
     sc = load_shipped(scene)
     m = CedraModel(sc.options)
-    out = {"x": "body.x", "y": "body.y", "z": "body.z", "yaw": "body.yaw", "pitch": "body.pitch",
-           "roll": "body.roll", "theta1": "bogie.theta[1]", "theta2": "bogie.theta[2]", "theta4": "fork.theta4",
-           "theta3": "steer.theta[1]", "theta6": "steer.theta[2]",
-           "rho": "rocker.rho", "beta_L": "bogie.beta[1]", "beta_R": "bogie.beta[2]"}     # a rocker-bogie scene's
-    names, data, _, info = run_bump(fmu, seconds, {}, extra=list(out.values()))
-    assert info["ok"], info["messages"][-2:]
-    col = {n: k for k, n in enumerate(names)}
     geo = ca.Function("geo", [m.q, m.par], [ca.horzcat(*[w.center for w in m.rover.wheels]),
                                             ca.horzcat(*[w.axle for w in m.rover.wheels])])
     par = m.default_par()
     states = []
-    for row in data[::25]:
-        q = np.zeros(len(m.q_names))
-        for k, nm in enumerate(m.q_names):
-            if nm in out and out[nm] in col:
-                q[k] = row[col[out[nm]]]
+    for q in run_coordinates(scene, m, seconds, every=25):
         c, a = [np.array(v) for v in geo(q, par)]
         states += [(c[:, i], a[:, i]) for i in range(c.shape[1])]
     return sc, states

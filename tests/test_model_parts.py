@@ -10,46 +10,19 @@ test asserts it, so the per-wheel choice of forms is exercised, not only the one
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import casadi as ca
 import numpy as np
 import pytest
 
 from cedra.mechanics import rim
 from cedra.models.scene import load_shipped, shipped
+from model_harness import run_coordinates
 
-REPO = Path(__file__).resolve().parents[1]
 COMPLIANT = [s for s in shipped() if load_shipped(s).options.contact == "compliant"]
 # how long each scene's main run is sampled: its stop time, at most 10 s; rubble3d's 7.5 s (the bump's speed loop,
 # which has no heading hold, drives it off the grid's side after 9 s: its own scenario steers)
 SECONDS = {"rubble3d": 7.5}
 SEVERAL = {"step2d", "stairs2d", "stairs3d", "rubble3d", "rb_step2d"}      # wheels meet edges on the main run
-OUTPUTS = {"x": "body.x", "y": "body.y", "z": "body.z", "yaw": "body.yaw", "pitch": "body.pitch",
-           "roll": "body.roll", "theta1": "bogie.theta[1]", "theta2": "bogie.theta[2]", "theta4": "fork.theta4",
-           "theta3": "steer.theta[1]", "theta6": "steer.theta[2]", "rho": "rocker.rho", "beta_L": "bogie.beta[1]",
-           "beta_R": "bogie.beta[2]"}
-
-
-def run_coordinates(scene, model, seconds):
-    """The coordinates (spin angles 0: a wheel is round) every 0.5 s of the scene's main run through its FMU."""
-    from cedra.run.simulate import run_bump
-    fmu = REPO / "build" / f"{scene}.fmu"
-    if not fmu.exists():
-        pytest.skip(f"{fmu} is not built (./build.sh)")
-    names, data, _, info = run_bump(fmu, seconds, {}, extra=list(OUTPUTS.values()))
-    assert info["ok"], info["messages"][-2:]
-    col = {n: k for k, n in enumerate(names)}
-    qs = []
-    for row in data[::50]:
-        q = np.zeros(len(model.q_names))
-        for k, nm in enumerate(model.q_names):
-            if nm in OUTPUTS and OUTPUTS[nm] in col:
-                q[k] = row[col[OUTPUTS[nm]]]
-        qs.append(q)
-    return qs
-
-
 def _calls(fn: ca.Function) -> list[str]:
     """The names of the functions an MX function calls (none for an SX function)."""
     if not fn.is_a("MXFunction"):
