@@ -124,3 +124,19 @@ def test_object_cache_dir_default(monkeypatch, tmp_path):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     assert compiler.cache_dir() == tmp_path / "cedra" / "objects"
     assert os.fspath(compiler.cache_dir()).startswith(os.fspath(tmp_path))
+
+
+def test_two_processes_asking_at_once_build_once(tmp_path, cache):
+    """Two processes that need the same missing FMU at once (xdist workers, a sweep and a script): one builds it
+    under the lock, the other then finds it up to date."""
+    import subprocess
+    import sys
+    code = ("import sys; from cedra.fmu.packaging import ensure_fmu; "
+            "ensure_fmu('drive2d', sys.argv[1], log=lambda line: print(line, flush=True))")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "python"))
+    procs = [subprocess.Popen([sys.executable, "-c", code, str(tmp_path / "build")], stdout=subprocess.PIPE,
+                              text=True, env=env) for _ in range(2)]
+    outs = [p.communicate(timeout=300)[0] for p in procs]
+    assert all(p.returncode == 0 for p in procs)
+    assert sum(o.count("building") for o in outs) == 1, outs
+    assert packaging.fmu_state("drive2d", tmp_path / "build")[2] == "up to date"

@@ -13,9 +13,9 @@ def _build_one(name: str, out: str, jobs: int) -> dict:
     """Generate, compile and package one scene (shipped name or .toml) or drive controller, in a worker process:
     what the build report shows of it (cedra.fmu.build_report)."""
     from cedra.fmu.compiler import CompileStats
-    from cedra.fmu.packaging import _resolve, build_fmu, fmu_state, write_stamp
+    from cedra.fmu.packaging import build_fmu, fmu_state, resolve_target, write_stamp
     t0 = time.perf_counter()
-    fmu, what, form = _resolve(name)
+    fmu, what, form = resolve_target(name)
     path, key, _ = fmu_state(what, out)
     spec = form()
     dict(spec.functions)                # the model's CasADi functions formed here, so "model" is what it costs

@@ -273,7 +273,7 @@ def write_stamp(fmu: Path, key: str) -> None:
     os.replace(tmp, stamp)
 
 
-def _resolve(target):
+def resolve_target(target):
     """(the FMU's name, the Scene or controller name, a function forming its ModelSpec) of a shipped scene's or
     controller's name, a scene file's path or a Scene."""
     from cedra.models.controller import CONTROLLERS, shipped_controller
@@ -289,7 +289,7 @@ def _resolve(target):
 
 def fmu_state(target, build_dir, extra_cflags=()) -> tuple[Path, str, str]:
     """(the FMU's path, its build key, "up to date" / "missing" / "stale") for target in build_dir."""
-    name, what, _ = _resolve(target)
+    name, what, _ = resolve_target(target)
     path = Path(build_dir) / f"{name}.fmu"
     key = build_key(what, extra_cflags)
     if not path.exists():
@@ -300,17 +300,25 @@ def fmu_state(target, build_dir, extra_cflags=()) -> tuple[Path, str, str]:
 def ensure_fmu(target, build_dir, extra_cflags=(), log=None, jobs: int | None = None) -> Path:
     """<build_dir>/<name>.fmu of target (a shipped scene's or controller's name, a scene file's path, or a Scene),
     built first when it is missing or stale (its stamp does not match today's sources, scene and flags); log (a
-    callable taking a line, default: print to stderr) is told when and why it builds."""
-    name, what, form = _resolve(target)
+    callable taking a line, default: print to stderr) is told when and why it builds. Processes that ask for the
+    same FMU at once (test workers, sweeps) take turns on a lock file: one builds, the others find it up to date."""
+    import fcntl
+    name, what, form = resolve_target(target)
     path, key, state = fmu_state(what, build_dir, extra_cflags)
     if state == "up to date":
         return path
-    say = log or (lambda line: print(line, file=sys.stderr, flush=True))
-    say(f"{name}: building {path} ({state})")
-    t0 = time.perf_counter()
-    stats = CompileStats()
-    out = build_fmu(form(), build_dir, extra_cflags, jobs=jobs, stats=stats)
-    write_stamp(out, key)
-    say(f"{name}: built in {time.perf_counter() - t0:.1f} s ({len(stats.compiled)} files compiled, "
-        f"{len(stats.cached)} from the cache)")
+    Path(build_dir).mkdir(parents=True, exist_ok=True)
+    with open(Path(build_dir) / f".{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        path, key, state = fmu_state(what, build_dir, extra_cflags)
+        if state == "up to date":
+            return path
+        say = log or (lambda line: print(line, file=sys.stderr, flush=True))
+        say(f"{name}: building {path} ({state})")
+        t0 = time.perf_counter()
+        stats = CompileStats()
+        out = build_fmu(form(), build_dir, extra_cflags, jobs=jobs, stats=stats)
+        write_stamp(out, key)
+        say(f"{name}: built in {time.perf_counter() - t0:.1f} s ({len(stats.compiled)} files compiled, "
+            f"{len(stats.cached)} from the cache)")
     return out
