@@ -1,5 +1,6 @@
-"""The model as parts: the rover's contact-free dynamics, the wheels' kinematics and ONE wheel-contact part, formed
-once and called for each wheel; cedra_f and cedra_rjac composed from them (docs/model.md, The model as parts).
+"""The model as parts: the rover's contact-free dynamics, the wheels' kinematics, ONE wheel-contact part formed once
+and called for each wheel, and ONE point-contact part for the body's and links' collision points; cedra_f,
+cedra_rjac, cedra_fc and cedra_fcjac composed from them (docs/model.md, The model as parts).
 
 A wheel's contact with the terrain depends on the rover only through the wheel's state
 
@@ -54,7 +55,9 @@ class WheelContactPart:
 
 
 class ModelParts:
-    """The parts of a compliant CedraModel and the contract's cedra_f and cedra_rjac composed from them."""
+    """The parts of a compliant CedraModel and the contract's cedra_f, cedra_rjac (and, with chassis points,
+    cedra_fc, cedra_fcjac) composed from them. It reads the model's symbols and its contact search (the same
+    package's CedraModel); the monolithic forms stay CedraModel's."""
 
     def __init__(self, model):
         if model.rigid:
@@ -122,7 +125,7 @@ class ModelParts:
         wrench_jac = _function("cedra_part_wheel_jac", ins, res([Wk, dW]))
         if not m.multi_contact:
             return WheelContactPart(wrench, wrench_jac, None, None, None)
-        ones = {k: v_ for k, v_ in rim.ONE_MAXIMUM.items()}
+        ones = rim.ONE_MAXIMUM
         fixed = [s[k] for k in ones], [ca.SX(v_) for v_ in ones.values()]
         one = _function("cedra_part_wheel_one", ins, res(ca.substitute([Wk], *fixed), False))
         # the same sparsity as the full form's (the forms are a conditional call; dW enters the dynamics with it)
