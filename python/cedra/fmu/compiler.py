@@ -109,18 +109,18 @@ def object_key(job: CompileJob, cc: str = CC) -> str:
     return h.hexdigest()
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def cached_object(key: str, root: Path | None = None) -> Path | None:
-    """The cache's object for key if it is whole (its bytes match the recorded hash); a damaged entry is removed."""
+def cached_object(key: str, root: Path | None = None) -> bytes | None:
+    """The cache's object for key if it is whole: its bytes, read once and checked against the recorded hash (the
+    bytes checked are the bytes used, whatever another process does to the entry meanwhile); a damaged entry is
+    removed."""
     root = root or cache_dir()
     obj, sha = root / f"{key}.o", root / f"{key}.sha256"
-    if not obj.is_file():
+    try:
+        data = obj.read_bytes()
+    except FileNotFoundError:
         return None
     try:
-        whole = sha.is_file() and sha.read_text().strip() == _sha256(obj)
+        whole = sha.read_text().strip() == hashlib.sha256(data).hexdigest()
     except OSError:
         whole = False
     if not whole:
@@ -130,11 +130,12 @@ def cached_object(key: str, root: Path | None = None) -> Path | None:
             except FileNotFoundError:
                 pass
         return None
-    return obj
+    return data
 
 
-def compile_object(job: CompileJob, cc: str = CC, root: Path | None = None) -> tuple[Path, bool, float]:
-    """(the object in the cache, whether it was compiled now, the compile's CPU seconds)."""
+def compile_object(job: CompileJob, cc: str = CC, root: Path | None = None) -> tuple[bytes, bool, float]:
+    """(the object's bytes, whether it was compiled now, the compile's CPU seconds); a compiled object is put into
+    the cache."""
     root = root or cache_dir()
     key = object_key(job, cc)
     hit = cached_object(key, root)
@@ -144,19 +145,19 @@ def compile_object(job: CompileJob, cc: str = CC, root: Path | None = None) -> t
     fd, tmp = tempfile.mkstemp(prefix=f"{key}.", suffix=".o.tmp", dir=root)
     os.close(fd)
     tmp = Path(tmp)
+    sha_tmp = tmp.with_suffix(".sha.tmp")
     try:
         inc = ["-I", str(job.include_dir)] if job.include_dir is not None else []
         _, cpu = run_timed([cc, *job.flags, *inc, "-c", str(job.source), "-o", str(tmp)])
-        digest = _sha256(tmp)
-        sha_tmp = tmp.with_suffix(".sha.tmp")
-        sha_tmp.write_text(digest + "\n")
+        data = tmp.read_bytes()
+        sha_tmp.write_text(hashlib.sha256(data).hexdigest() + "\n")
         os.replace(tmp, root / f"{key}.o")         # the object first: a sidecar never names a missing object
         os.replace(sha_tmp, root / f"{key}.sha256")
     finally:
-        for p in (tmp, tmp.with_suffix(".sha.tmp")):
+        for p in (tmp, sha_tmp):
             if p.exists():
                 p.unlink()
-    return root / f"{key}.o", True, cpu
+    return data, True, cpu
 
 
 _CPU_LOCK = threading.Lock()
@@ -174,9 +175,9 @@ def compile_objects(jobs: list[CompileJob], obj_dir: Path, workers: int | None =
 
     def one(k):
         job = jobs[k]
-        obj, fresh, cpu = compile_object(job, cc)
+        data, fresh, cpu = compile_object(job, cc)
         out = obj_dir / (Path(job.source).stem + ".o")
-        out.write_bytes(obj.read_bytes())
+        out.write_bytes(data)
         if stats is not None:
             with _CPU_LOCK:
                 (stats.compiled if fresh else stats.cached).append(Path(job.source).name)
