@@ -536,15 +536,18 @@ class CedraModel:
 
     @property
     def has_parts(self) -> bool:
-        """Whether cedra_f and cedra_rjac are composed from parts (cedra.models.parts): the FMU's compliant law
-        (the rigid model's contact forces are the glue's; the optimizer's smoothed law and the symbolic search are
-        reference forms)."""
+        """Whether cedra_f, cedra_rjac (and cedra_fc, cedra_fcjac) are composed from parts (cedra.models.parts): the
+        FMU's compliant law (the rigid model's contact forces are the glue's; the optimizer's smoothed law and the
+        symbolic search are reference forms)."""
         return not self.rigid and self.contact_width is None and not self.symbolic_rim
 
     def functions(self, one=True, parts=True) -> dict[str, ca.Function]:
-        """The contract's functions; one=False: without the one-maximum form (_contract); parts=False: cedra_f and
-        cedra_rjac in the monolithic form (the reference the parts are tested against)."""
+        """The contract's functions; one=False: without the one-maximum form (_contract); parts=False: cedra_f,
+        cedra_rjac, cedra_fc and cedra_fcjac in the monolithic form (the reference the parts are tested against).
+        Where the parts serve, their monolithic forms are not formed at all (their Jacobians are the costly part
+        of forming a scene)."""
         q, u, par, inp = self.q, self.u, self.par, self.inp
+        composed = self.parts.functions() if parts and self.has_parts else {}
         n = q.numel()
         z = ca.SX.sym("z", 1)
         a = ca.SX.sym("a", n)
@@ -577,21 +580,23 @@ class CedraModel:
         if self.chassis and not self.rigid:
             Qc = self.chassis_force
             fns["cedra_cgap"] = _function("cedra_cgap", [q, inp, par], res_([self.chassis_depth], derivatives=False))
-            fns["cedra_fc"] = _function("cedra_fc", [q, u, inp, par], res_([Qc], derivatives=False))
-            fns["cedra_fcjac"] = _function("cedra_fcjac", [q, u, inp, par],
-                                           res_([ca.jacobian(Qc, q), ca.jacobian(Qc, u)]))
+            if "cedra_fc" not in composed:
+                fns["cedra_fc"] = _function("cedra_fc", [q, u, inp, par], res_([Qc], derivatives=False))
+                fns["cedra_fcjac"] = _function("cedra_fcjac", [q, u, inp, par],
+                                               res_([ca.jacobian(Qc, q), ca.jacobian(Qc, u)]))
+        if "cedra_f" not in composed:
+            fns["cedra_f"] = self._contract("cedra_f", [q, u, inp, par], [self.f, self.power], False, one)
+            fns["cedra_rjac"] = self._contract("cedra_rjac", [q, u, a, inp, par],
+                                               [ca.jacobian(r, q), ca.jacobian(r, u),
+                                                ca.jacobian(self.power, q), ca.jacobian(self.power, u)], True, one)
         return fns | {
             "cedra_M": _function("cedra_M", [q, par], [self.M]),
-            "cedra_f": self._contract("cedra_f", [q, u, inp, par], [self.f, self.power], False, one),
-            "cedra_rjac": self._contract("cedra_rjac", [q, u, a, inp, par],
-                                         [ca.jacobian(r, q), ca.jacobian(r, u),
-                                          ca.jacobian(self.power, q), ca.jacobian(self.power, u)], True, one),
             "cedra_out": self._contract("cedra_out", [q, u, z, inp, par] + ([self.lam] if self.rigid else []), [y],
                                         True, one),
             "cedra_settle": self._contract("cedra_settle", [q, inp, par], [res, jac], True, one),
             "cedra_guess": _function("cedra_guess", [q, inp, par], [self.guess()]),
             "cedra_check": _function("cedra_check", [q, u, inp, par], [self.check()]),
-        } | terrain_functions(self.terrain) | (self.parts.functions() if parts and self.has_parts else {})
+        } | terrain_functions(self.terrain) | composed
 
     @cached_property
     def parts(self):
