@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from cedra.mechanics import rim
+from cedra.models.parts import SEARCH_INPUT
 from cedra.models.scene import load_shipped, shipped
 from model_harness import run_coordinates
 
@@ -62,7 +63,7 @@ def test_parts_equal_the_monolithic_form(scene):
             _, S = kin(q, u, inp, par)
             search = search or m._rim_search
             for k in range(len(m.rover.wheels)):
-                s = search(np.array(S[15 * k:15 * (k + 1)]))
+                s = search(np.array(S[SEARCH_INPUT * k:SEARCH_INPUT * (k + 1)]))
                 several += not bool(flag(s))
     print(f"{scene}: worst {worst:.1e} relative; {several} wheel samples in the three-slot form")
     if scene in SEVERAL:

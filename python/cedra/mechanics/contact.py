@@ -212,6 +212,15 @@ def rim_contacts(center, axle, terrain: Terrain, radius, search, freeze=None):
     return geos, present
 
 
+def point_penetration(terrain: Terrain, point):
+    """(the terrain's unit normal under the point, its penetration g n_Z = (h - p_Z) n_Z; > 0 below the surface):
+    what a collision point of the body and links meets (docs/model.md, Chassis and links)."""
+    h, grad, _ = terrain.local(point[0], point[1])
+    n = ca.vertcat(-grad[0], -grad[1], 1)
+    n = n / ca.norm_2(n)
+    return n, (h - point[2]) * n[2]
+
+
 def softplus(x, width):
     """width log(1 + exp(x / width)): a smooth max(0, x), within width log 2 of it and tending to it as width -> 0
     (written max(x, 0) + width log(1 + exp(-|x| / width)), which never overflows and is as smooth as the sum)."""

@@ -28,12 +28,15 @@ from dataclasses import dataclass
 import casadi as ca
 
 from cedra.mechanics import rim
-from cedra.mechanics.contact import compliant_force, compliant_law, contact_geometry, rim_contacts
+from cedra.mechanics.contact import (compliant_force, compliant_law, contact_geometry, point_penetration,
+                                     rim_contacts)
+from cedra.contract import TERRAIN_TIN
 from cedra.mechanics.kane import KaneSystem
 
 WHEEL_STATE = 12      # x_k = [center, axle, center velocity, angular velocity]
 WRENCH = 6            # W_k = [force, torque about the center]
 POINT_STATE = 6       # a collision point's x = [position, velocity]
+SEARCH_INPUT = 7 + TERRAIN_TIN    # the contact search's x = [center, axle, radius, terrain inputs] (fmu_src/rim.c)
 
 
 def _function(name, ins, outs, names_in=None, names_out=None) -> ca.Function:
@@ -139,13 +142,13 @@ class ModelParts:
 
     # ---------------- the composition (MX: each part a call, each wheel's form a conditional call) ----------------
     def _wheels(self, q, u, inp, par, jac: bool):
-        """Per wheel: its state x_k, and its wrench W_k (jac: also dW_k/dx_k), the search run once per wheel (a 2D
+        """Per wheel: its wrench W_k (jac: also dW_k/dx_k), the search run once per wheel (a 2D
         wheel and its planar twin meet the terrain alike: one search and one wrench for the pair)."""
         m, P = self.m, self.contact
         out = self.kin(q, u, inp, par)
         X = out[0] if isinstance(out, (list, tuple)) else out
         S = out[1] if m.multi_contact else None
-        xs, Ws, dWs = [], [], []
+        Ws, dWs = [], []
         forms = None
         if m.multi_contact:
             forms = (ca.Function.if_else("cedra_part_wheel_forms", P.one_wrench, P.wrench),
@@ -153,7 +156,6 @@ class ModelParts:
         done = {}
         for k, wh in enumerate(m.rover.wheels):
             x = X[WHEEL_STATE * k:WHEEL_STATE * (k + 1)]
-            xs.append(x)
             twin = m.planar_twins.get(wh.index) if m.opt.dims == "2d" else None
             if twin in done:
                 # 2D: a wheel and its planar twin differ only in their center's Y, and the terrain is constant in Y:
@@ -164,7 +166,7 @@ class ModelParts:
                 continue
             done[wh.index] = k
             if m.multi_contact:
-                s = m._rim_search(S[15 * k:15 * (k + 1)])
+                s = m._rim_search(S[SEARCH_INPUT * k:SEARCH_INPUT * (k + 1)])
                 flag = P.flag(s)
                 if jac:
                     Wk, dWk = forms[1](flag, x, s, inp, par)
@@ -180,17 +182,18 @@ class ModelParts:
                     dWs.append(dWk)
                 else:
                     Ws.append(P.wrench(x, s, inp, par))
-        return xs, Ws, dWs
+        return Ws, dWs
 
     def functions(self) -> dict[str, ca.Function]:
-        """cedra_f and cedra_rjac under the contract's names and arguments (cedra.contract)."""
+        """cedra_f and cedra_rjac (and, with collision points, cedra_fc and cedra_fcjac) under the contract's names
+        and arguments (cedra.contract)."""
         n = self.n
         q, u, a = ca.MX.sym("q", n), ca.MX.sym("u", n), ca.MX.sym("a", n)
         inp, par = ca.MX.sym("inp", self.m.inp.numel()), ca.MX.sym("par", self.m.par.numel())
-        _, Ws, _ = self._wheels(q, u, inp, par, jac=False)
+        Ws, _ = self._wheels(q, u, inp, par, jac=False)
         f, power = self.dyn_f(q, u, inp, par, ca.vertcat(*Ws))
         cedra_f = ca.Function("cedra_f", [q, u, inp, par], [f, power])
-        _, Ws, dWs = self._wheels(q, u, inp, par, jac=True)
+        Ws, dWs = self._wheels(q, u, inp, par, jac=True)
         dr_dq, dr_du, dp_dq, dp_du = self.dyn_jac(q, u, a, inp, par, ca.vertcat(*Ws), ca.horzcat(*dWs))
         cedra_rjac = ca.Function("cedra_rjac", [q, u, a, inp, par], [dr_dq, dr_du, dp_dq, dp_du])
         fns = {"cedra_f": cedra_f, "cedra_rjac": cedra_rjac}
@@ -211,10 +214,7 @@ class ModelParts:
         self.n_points = len(points)
         x = ca.SX.sym("x", POINT_STATE)
         pos, vel = x[0:3], x[3:6]
-        h, grad, _ = m.terrain.local(pos[0], pos[1])
-        n = ca.vertcat(-grad[0], -grad[1], 1)
-        n = n / ca.norm_2(n)
-        depth = (h - pos[2]) * n[2]
+        n, depth = point_penetration(m.terrain, pos)
         Fn, Ft, _, _ = compliant_law(depth, n, vel, p["ground_k"], p["ground_d"], i_["mu"], p["v_eps"])
         F = Fn * n + Ft
         res = m.terrain.resolve

@@ -16,7 +16,8 @@ import numpy as np
 
 from cedra.rover import parameters
 from cedra.mechanics.contact import (ContactGeometry, compliant_force, compliant_law, contact_frame,
-                                     contact_geometry, rim_contacts, slope_angle, terrain_functions)
+                                     contact_geometry, point_penetration, rim_contacts, slope_angle,
+                                     terrain_functions)
 from cedra.mechanics import rim
 from cedra.mechanics.kane import KaneSystem
 from cedra.rover.mechanism import drive_torque
@@ -240,10 +241,7 @@ class CedraModel:
             if weight == 0:
                 continue
             pos = pt.position
-            h, grad, _ = self.terrain.local(pos[0], pos[1])
-            n = ca.vertcat(-grad[0], -grad[1], 1)
-            n = n / ca.norm_2(n)
-            depth = (h - pos[2]) * n[2]
+            n, depth = point_penetration(self.terrain, pos)
             v = self.rate(pos)
             if self.rigid:
                 lam = self._rigid_contact(contact_frame(lateral, n).T @ v, -depth)["lam"]
