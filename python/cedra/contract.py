@@ -166,6 +166,13 @@ class ModelSpec:
     #                                         implementation is fmu_src/heightmap.c)
     rim_refine: bool = False                # the rim search samples the arcs near touching again (fmu_src/rim.c,
     #                                         CEDRA_RIM_REFINE): 3D scenes and heightmaps
+    part_names: list[str] = field(default_factory=list)   # the model's parts (cedra_part_*), one C file each
+    parts: Mapping[str, ca.Function] = field(default_factory=dict)  # part name -> its function (a dict or lazy)
+    compose: Callable[[Mapping[str, ca.Function]], Mapping[str, ca.Function]] | None = None
+    #                                         compose(replacements) -> the contract functions formed from the parts,
+    #                                         each part named in replacements called through its replacement (the
+    #                                         same name and signature): the build passes external functions, so
+    #                                         that a composition's C calls each part in the part's own file
 
     @property
     def nq(self) -> int:

@@ -16,6 +16,7 @@ from pathlib import Path
 import casadi as ca
 
 from cedra.contract import ModelSpec
+from cedra.fmu import part_stubs
 
 CODEGEN_OPTIONS = {"with_header": True, "casadi_real": "double", "casadi_int": "long long int",
                    "with_mem": False, "verbose": False, "mex": False, "cpp": False, "main": False}
@@ -40,8 +41,8 @@ MODEL_HEADER = "cedra_model.h"
 
 
 def generated_files(spec: ModelSpec) -> list[str]:
-    """The C files generate_c writes for spec, in the contract's function order."""
-    return [f"{name}.c" for name in spec.function_names()]
+    """The C files generate_c writes for spec: the contract's functions in its order, then the parts'."""
+    return [f"{name}.c" for name in spec.function_names() + list(spec.part_names)]
 
 
 def is_generated(file_name: str) -> bool:
@@ -50,17 +51,34 @@ def is_generated(file_name: str) -> bool:
     return file_name.startswith("cedra_") and file_name.endswith(".c")
 
 
+def _generate(fn: ca.Function, out_dir: Path) -> None:
+    cg = ca.CodeGenerator(f"{fn.name()}.c", CODEGEN_OPTIONS)
+    cg.add(fn)
+    cg.generate(str(out_dir) + "/")
+
+
 def generate_c(spec: ModelSpec, out_dir) -> list[Path]:
-    """Write out_dir/<name>.c and <name>.h for every contract function and out_dir/cedra_model.h including all the
-    headers; returns the C files."""
+    """Write out_dir/<name>.c and <name>.h for every contract function and every part, and out_dir/cedra_model.h
+    including the contract functions' headers; returns the C files.
+
+    A part is written once, into its own file. The contract functions formed from parts (spec.compose) are
+    generated with each part replaced by an external function of the same name, so that their C calls the part's
+    file instead of holding a copy of it: a part's text depends only on what it computes, so the object cache
+    keeps it across the functions that call it and across scenes whose part is the same."""
     spec.check()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     names = spec.function_names()
+    fns = dict(spec.functions) if not spec.part_names else {n: spec.functions[n] for n in names}
+    if spec.part_names:
+        externals = {}
+        for part in spec.part_names:
+            fn = spec.parts[part]
+            _generate(fn, out_dir)
+            externals[part] = part_stubs.external(fn, out_dir / f"{part}.c")
+        fns |= dict(spec.compose(externals))
     for name in names:
-        cg = ca.CodeGenerator(f"{name}.c", CODEGEN_OPTIONS)
-        cg.add(dense(spec.functions[name]))
-        cg.generate(str(out_dir) + "/")
+        _generate(dense(fns[name]), out_dir)
     guard = "CEDRA_MODEL_H"
     (out_dir / MODEL_HEADER).write_text(
         f"/* The model's generated functions, one file each (cedra.fmu.codegen). */\n#ifndef {guard}\n"

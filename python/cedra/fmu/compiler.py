@@ -189,3 +189,29 @@ def compile_objects(jobs: list[CompileJob], obj_dir: Path, workers: int | None =
         for k, out in pool.map(one, order):
             results[k] = out
     return [results[k] for k in range(len(jobs))]
+
+
+def shared_library(source: Path, flags: tuple[str, ...], out_dir: Path, cc: str = CC) -> Path:
+    """source compiled (through the object cache) and linked into out_dir/<stem>-<key>.so, a name that changes
+    with the object's key: a process that loaded an older library of the same stem never sees it replaced (the
+    loader keeps a library by its path)."""
+    job = CompileJob(Path(source), tuple(flags) + ("-fPIC",))
+    key = object_key(job, cc)
+    out_dir = Path(out_dir)
+    lib = out_dir / f"{Path(source).stem}-{key[:16]}.so"
+    if lib.is_file():
+        return lib
+    out_dir.mkdir(parents=True, exist_ok=True)
+    data, _, _ = compile_object(job, cc)
+    fd, obj = tempfile.mkstemp(suffix=".o", dir=out_dir)
+    os.close(fd)
+    tmp = lib.with_name(f".{lib.name}.{os.getpid()}.tmp")
+    try:
+        Path(obj).write_bytes(data)
+        run([cc, "-shared", "-o", str(tmp), obj, "-lm"])
+        os.replace(tmp, lib)
+    finally:
+        for p in (Path(obj), tmp):
+            if p.exists():
+                p.unlink()
+    return lib

@@ -39,6 +39,19 @@ POINT_STATE = 6       # a collision point's x = [position, velocity]
 SEARCH_INPUT = 7 + TERRAIN_TIN    # the contact search's x = [center, axle, radius, terrain inputs] (fmu_src/rim.c)
 
 
+def part_names(multi_contact: bool, chassis: bool) -> list[str]:
+    """The fixed names of a model's parts, in the order the build writes their C files: the wheels' kinematics,
+    the contact-free dynamics, the wheel-contact part (with its one-maximum forms where a wheel can touch at several
+    points), and with collision points the point-contact part and the chassis' generalized force."""
+    names = ["cedra_part_kin", "cedra_part_dyn", "cedra_part_dyn_jac", "cedra_part_wheel", "cedra_part_wheel_jac"]
+    if multi_contact:
+        names += ["cedra_part_wheel_one", "cedra_part_wheel_one_jac", "cedra_part_wheel_flag"]
+    if chassis:
+        names += ["cedra_part_point", "cedra_part_point_jac", "cedra_part_point_none", "cedra_part_point_depth",
+                  "cedra_part_point_kin", "cedra_part_chassis", "cedra_part_chassis_jac"]
+    return names
+
+
 def _function(name, ins, outs, names_in=None, names_out=None) -> ca.Function:
     opts = {"cse": True}
     if names_in:
@@ -66,13 +79,15 @@ class ModelParts:
         if model.rigid:
             raise ValueError("the parts form is the compliant model's (rigid contact keeps the monolithic form)")
         self.m = model
+        self.part_functions: dict[str, ca.Function] = {}     # every part, by its fixed name
+        self.compact: dict[str, dict[int, list[int]]] = {}  # a compact part's argument -> the entries it reads
         q, u, par, inp = model.q, model.u, model.par, model.inp
         self.n = q.numel()
         wheels = model.rover.wheels
         self.K = len(wheels)
         # the wheels' states and the search's inputs, functions of the rover's coordinates
         X = ca.vertcat(*[ca.vertcat(w.center, w.axle, w.velocity, w.omega) for w in wheels])
-        self.kin = _function("cedra_part_kin", [q, u, inp, par], [X] + (
+        self.kin = self._part("cedra_part_kin", [q, u, inp, par], [X] + (
             [ca.vertcat(*[rim.search_input(w.center, w.axle, model.p["R_w"], model.terrain) for w in wheels])]
             if model.multi_contact else []))
         # the contact-free dynamics: Kane's equations without the wheels' contact forces, the wrenches as inputs
@@ -98,9 +113,12 @@ class ModelParts:
             dr_du -= J[k].T @ (dW[k] @ Xu[rows, :])
         if model.chassis:
             self._chassis_parts()
-        self.dyn_f = _function("cedra_part_dyn", [q, u, inp, par, W], [fW, model.power])
-        self.dyn_jac = _function("cedra_part_dyn_jac", [q, u, a, inp, par, W, ca.horzcat(*dW)], [
-            dr_dq, dr_du, ca.jacobian(model.power, q), ca.jacobian(model.power, u)])
+        self.dyn_f = self._part("cedra_part_dyn", [q, u, inp, par, W], [fW, model.power], compact=True)
+        self.dyn_jac = self._part("cedra_part_dyn_jac", [q, u, a, inp, par, W, ca.horzcat(*dW)], [
+            dr_dq, dr_du, ca.jacobian(model.power, q), ca.jacobian(model.power, u)], compact=True)
+        expected = part_names(model.multi_contact, bool(model.chassis))
+        if sorted(self.part_functions) != sorted(expected):
+            raise RuntimeError(f"the parts formed {sorted(self.part_functions)}, part_names says {sorted(expected)}")
 
     def _wheel_part(self) -> WheelContactPart:
         """The wheel-contact part, formed once from a symbolic wheel state (the contact law of
@@ -123,36 +141,56 @@ class ModelParts:
         dW = ca.jacobian(Wk, x)
         ins = [x, s, m.inp, m.par]
         res = m.terrain.resolve
-        wrench = _function("cedra_part_wheel", ins, res([Wk], False))
+        wrench = self._part("cedra_part_wheel", ins, res([Wk], False))
         # the Jacobian's form gives the wrench too: one call per wheel forms the contact geometry once for both
-        wrench_jac = _function("cedra_part_wheel_jac", ins, res([Wk, dW]))
+        wrench_jac = self._part("cedra_part_wheel_jac", ins, res([Wk, dW]))
         if not m.multi_contact:
             return WheelContactPart(wrench, wrench_jac, None, None, None)
         ones = rim.ONE_MAXIMUM
         fixed = [s[k] for k in ones], [ca.SX(v_) for v_ in ones.values()]
-        one = _function("cedra_part_wheel_one", ins, res(ca.substitute([Wk], *fixed), False))
+        one = self._part("cedra_part_wheel_one", ins, res(ca.substitute([Wk], *fixed), False))
         # the same sparsity as the full form's (the forms are a conditional call; dW enters the dynamics with it)
         one_W, one_dW = ca.substitute([Wk, dW], *fixed)
-        one_jac = _function("cedra_part_wheel_one_jac", ins,
+        one_jac = self._part("cedra_part_wheel_one_jac", ins,
                             [e if k == 0 else ca.project(e, dW.sparsity()) for k, e in enumerate(res([one_W, one_dW]))])
         flag = 1
         for k, v_ in ones.items():
             flag = ca.logic_and(flag, s[k] == v_)
-        return WheelContactPart(wrench, wrench_jac, one, one_jac, _function("cedra_part_wheel_flag", [s], [flag]))
+        return WheelContactPart(wrench, wrench_jac, one, one_jac, self._part("cedra_part_wheel_flag", [s], [flag]))
+
+    def _part(self, name, ins, outs, compact: bool = False) -> ca.Function:
+        """The part `name`; compact: its inputs and parameters reduced to the entries it reads (self.compact keeps
+        which), so that the part's C is the same in every scene whose rover is the same, whatever the terrain's
+        inputs and the scene's parameters around them (the object cache then keeps one object for all of them)."""
+        if compact:
+            every = ca.vertcat(*[ca.vec(o) for o in outs])
+            picks = {}
+            for k, arg in enumerate(ins):
+                if arg is self.m.inp or arg is self.m.par:
+                    idx = [i for i, used in enumerate(ca.which_depends(every, arg, 1, False)) if used]
+                    picks[k] = idx
+                    sub = ca.SX.sym("inp" if arg is self.m.inp else "par", len(idx))
+                    outs = ca.substitute(outs, [arg[idx]], [sub]) if idx else outs
+                    ins = ins[:k] + [sub] + ins[k + 1:]
+            self.compact[name] = picks
+        fn = _function(name, ins, outs)
+        self.part_functions[name] = fn
+        return fn
 
     # ---------------- the composition (MX: each part a call, each wheel's form a conditional call) ----------------
-    def _wheels(self, q, u, inp, par, jac: bool):
+    def _wheels(self, q, u, inp, par, jac: bool, use):
         """Per wheel: its wrench W_k (jac: also dW_k/dx_k), the search run once per wheel (a 2D
         wheel and its planar twin meet the terrain alike: one search and one wrench for the pair)."""
-        m, P = self.m, self.contact
-        out = self.kin(q, u, inp, par)
+        m = self.m
+        out = use("cedra_part_kin")(q, u, inp, par)
         X = out[0] if isinstance(out, (list, tuple)) else out
         S = out[1] if m.multi_contact else None
         Ws, dWs = [], []
         forms = None
         if m.multi_contact:
-            forms = (ca.Function.if_else("cedra_part_wheel_forms", P.one_wrench, P.wrench),
-                     ca.Function.if_else("cedra_part_wheel_jac_forms", P.one_wrench_jac, P.wrench_jac))
+            forms = (ca.Function.if_else("cedra_part_wheel_forms", use("cedra_part_wheel_one"), use("cedra_part_wheel")),
+                     ca.Function.if_else("cedra_part_wheel_jac_forms", use("cedra_part_wheel_one_jac"),
+                                         use("cedra_part_wheel_jac")))
         done = {}
         for k, wh in enumerate(m.rover.wheels):
             x = X[WHEEL_STATE * k:WHEEL_STATE * (k + 1)]
@@ -167,7 +205,7 @@ class ModelParts:
             done[wh.index] = k
             if m.multi_contact:
                 s = m._rim_search(S[SEARCH_INPUT * k:SEARCH_INPUT * (k + 1)])
-                flag = P.flag(s)
+                flag = use("cedra_part_wheel_flag")(s)
                 if jac:
                     Wk, dWk = forms[1](flag, x, s, inp, par)
                     Ws.append(Wk)
@@ -177,27 +215,44 @@ class ModelParts:
             else:
                 s = ca.MX.zeros(rim.N_RESULT, 1)
                 if jac:
-                    Wk, dWk = P.wrench_jac(x, s, inp, par)
+                    Wk, dWk = use("cedra_part_wheel_jac")(x, s, inp, par)
                     Ws.append(Wk)
                     dWs.append(dWk)
                 else:
-                    Ws.append(P.wrench(x, s, inp, par))
+                    Ws.append(use("cedra_part_wheel")(x, s, inp, par))
         return Ws, dWs
 
-    def functions(self) -> dict[str, ca.Function]:
+    def _user(self, parts):
+        """name -> the part the compositions call: parts[name] where given (the same name and signature: the FMU's
+        build passes the parts as external functions, so that the compositions' C calls each part's own file),
+        else the part itself."""
+        parts = parts or {}
+        unknown = set(parts) - set(self.part_functions)
+        if unknown:
+            raise KeyError(f"no parts named {sorted(unknown)}")
+
+        def use(name):
+            fn, picks = parts.get(name, self.part_functions[name]), self.compact.get(name)
+            if not picks:
+                return fn
+            return lambda *args: fn(*[a[picks[k]] if k in picks else a for k, a in enumerate(args)])
+        return use
+
+    def functions(self, parts=None) -> dict[str, ca.Function]:
         """cedra_f and cedra_rjac (and, with collision points, cedra_fc and cedra_fcjac) under the contract's names
-        and arguments (cedra.contract)."""
+        and arguments (cedra.contract); parts: replacements of some parts by name (_user)."""
+        use = self._user(parts)
         n = self.n
         q, u, a = ca.MX.sym("q", n), ca.MX.sym("u", n), ca.MX.sym("a", n)
         inp, par = ca.MX.sym("inp", self.m.inp.numel()), ca.MX.sym("par", self.m.par.numel())
-        Ws, _ = self._wheels(q, u, inp, par, jac=False)
-        f, power = self.dyn_f(q, u, inp, par, ca.vertcat(*Ws))
+        Ws, _ = self._wheels(q, u, inp, par, False, use)
+        f, power = use("cedra_part_dyn")(q, u, inp, par, ca.vertcat(*Ws))
         cedra_f = ca.Function("cedra_f", [q, u, inp, par], [f, power])
-        Ws, dWs = self._wheels(q, u, inp, par, jac=True)
-        dr_dq, dr_du, dp_dq, dp_du = self.dyn_jac(q, u, a, inp, par, ca.vertcat(*Ws), ca.horzcat(*dWs))
+        Ws, dWs = self._wheels(q, u, inp, par, True, use)
+        dr_dq, dr_du, dp_dq, dp_du = use("cedra_part_dyn_jac")(q, u, a, inp, par, ca.vertcat(*Ws), ca.horzcat(*dWs))
         cedra_rjac = ca.Function("cedra_rjac", [q, u, a, inp, par], [dr_dq, dr_du, dp_dq, dp_du])
         fns = {"cedra_f": cedra_f, "cedra_rjac": cedra_rjac}
-        return fns | (self.chassis_functions() if self.m.chassis else {})
+        return fns | (self.chassis_functions(parts) if self.m.chassis else {})
 
     # ---------------- the body's and links' collision points (docs/model.md, Chassis and links) ----------------
     def _chassis_parts(self):
@@ -218,13 +273,13 @@ class ModelParts:
         Fn, Ft, _, _ = compliant_law(depth, n, vel, p["ground_k"], p["ground_d"], i_["mu"], p["v_eps"])
         F = Fn * n + Ft
         res = m.terrain.resolve
-        self.point_jac = _function("cedra_part_point_jac", [x, inp, par], res([F, ca.jacobian(F, x)]))
-        self.point = _function("cedra_part_point", [x, inp, par], res([F], False))
+        self.point_jac = self._part("cedra_part_point_jac", [x, inp, par], res([F, ca.jacobian(F, x)]))
+        self.point = self._part("cedra_part_point", [x, inp, par], res([F], False))
         zero = [ca.SX.zeros(self.point_jac.sparsity_out(k)) for k in range(2)]
-        self.point_none = _function("cedra_part_point_none", [x, inp, par], zero)
-        self.point_depth = _function("cedra_part_point_depth", [x, inp, par], res([depth], False))
+        self.point_none = self._part("cedra_part_point_none", [x, inp, par], zero)
+        self.point_depth = self._part("cedra_part_point_depth", [x, inp, par], res([depth], False))
         P = ca.vertcat(*[ca.vertcat(pt.position, m.rate(pt.position)) for pt in points])
-        self.point_kin = _function("cedra_part_point_kin", [q, u, par], [P])
+        self.point_kin = self._part("cedra_part_point_kin", [q, u, par], [P], compact=True)
         Fs = ca.SX.sym("F", 3 * self.n_points)
         pattern = self.point_jac.sparsity_out(1)
         dF = [ca.SX.sym(f"dF{j}", pattern) for j in range(self.n_points)]
@@ -238,33 +293,36 @@ class ModelParts:
             rows = slice(POINT_STATE * j, POINT_STATE * (j + 1))
             dQ_dq += weights[j] * (Jp[j].T @ (dF[j] @ Pq[rows, :]))
             dQ_du += weights[j] * (Jp[j].T @ (dF[j] @ Pu[rows, :]))
-        self.chassis_dyn = _function("cedra_part_chassis", [q, u, par, Fs], [Qc])
-        self.chassis_dyn_jac = _function("cedra_part_chassis_jac", [q, u, par, Fs, ca.horzcat(*dF)], [dQ_dq, dQ_du])
+        self.chassis_dyn = self._part("cedra_part_chassis", [q, u, par, Fs], [Qc], compact=True)
+        self.chassis_dyn_jac = self._part("cedra_part_chassis_jac", [q, u, par, Fs, ca.horzcat(*dF)], [dQ_dq, dQ_du],
+                                          compact=True)
 
-    def _points(self, q, u, inp, par, jac: bool):
+    def _points(self, q, u, inp, par, jac: bool, use):
         """Each collision point's force (jac: and dF/dx), the part called only where the point touches."""
-        P = self.point_kin(q, u, par)
-        touch = ca.Function.if_else("cedra_part_point_touch", self.point_jac, self.point_none)
+        P = use("cedra_part_point_kin")(q, u, par)
+        touch = ca.Function.if_else("cedra_part_point_touch", use("cedra_part_point_jac"), use("cedra_part_point_none"))
         Fs, dFs = [], []
         for j in range(self.n_points):
             x = P[POINT_STATE * j:POINT_STATE * (j + 1)]
-            flag = self.point_depth(x, inp, par) > 0
+            flag = use("cedra_part_point_depth")(x, inp, par) > 0
             if jac:
                 F, dF = touch(flag, x, inp, par)
                 Fs.append(F)
                 dFs.append(dF)
             else:
-                Fs.append(ca.if_else(flag, self.point(x, inp, par), ca.MX.zeros(3, 1), True))
+                Fs.append(ca.if_else(flag, use("cedra_part_point")(x, inp, par), ca.MX.zeros(3, 1), True))
         return Fs, dFs
 
-    def chassis_functions(self) -> dict[str, ca.Function]:
-        """cedra_fc and cedra_fcjac under the contract's names and arguments (cedra.contract)."""
+    def chassis_functions(self, parts=None) -> dict[str, ca.Function]:
+        """cedra_fc and cedra_fcjac under the contract's names and arguments (cedra.contract); parts as in
+        functions."""
+        use = self._user(parts)
         n = self.n
         q, u = ca.MX.sym("q", n), ca.MX.sym("u", n)
         inp, par = ca.MX.sym("inp", self.m.inp.numel()), ca.MX.sym("par", self.m.par.numel())
-        Fs, _ = self._points(q, u, inp, par, jac=False)
-        fc = ca.Function("cedra_fc", [q, u, inp, par], [self.chassis_dyn(q, u, par, ca.vertcat(*Fs))])
-        Fs, dFs = self._points(q, u, inp, par, jac=True)
-        dq, du = self.chassis_dyn_jac(q, u, par, ca.vertcat(*Fs), ca.horzcat(*dFs))
+        Fs, _ = self._points(q, u, inp, par, False, use)
+        fc = ca.Function("cedra_fc", [q, u, inp, par], [use("cedra_part_chassis")(q, u, par, ca.vertcat(*Fs))])
+        Fs, dFs = self._points(q, u, inp, par, True, use)
+        dq, du = use("cedra_part_chassis_jac")(q, u, par, ca.vertcat(*Fs), ca.horzcat(*dFs))
         fcjac = ca.Function("cedra_fcjac", [q, u, inp, par], [dq, du])
         return {"cedra_fc": fc, "cedra_fcjac": fcjac}

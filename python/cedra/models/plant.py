@@ -661,7 +661,16 @@ class CedraModel:
                          heightmap_file=self.opt.heightmap, rim_refine=self.rim_refine,
                          switch_names=list(self.switches[3]), n_hold=len(self.switches[1]),
                          chassis=bool(self.chassis) and not self.rigid,   # rigid: contacts of cedra_contact
-                         **kw)
+                         **self._parts_spec(), **kw)
+
+    def _parts_spec(self) -> dict:
+        """ModelSpec's part_names, parts and compose where the parts serve (cedra.models.parts), formed on use."""
+        if not self.has_parts:
+            return {}
+        from cedra.models.parts import part_names
+        return dict(part_names=part_names(self.multi_contact, bool(self.chassis)),
+                    parts=LazyFunctions(lambda: self.parts.part_functions),
+                    compose=lambda replacements: self.parts.functions(replacements))
 
     # ---------------- numeric helpers (tests, reference solutions) ----------------
     @cached_property
