@@ -250,6 +250,9 @@ class PlanarRover:
             for j, (e, top) in enumerate(blocks):
                 point = np.array([max(centres[k][0], e), min(centres[k][1], top)])
                 d = np.linalg.norm(centres[k] - point)
+                if d < 1e-12:
+                    raise PoseError(f"rover {self.kind.name}: wheel {g}'s centre is inside the profile at "
+                                    f"({centres[k][0]:.4f}, {centres[k][1]:.4f}) m")
                 gap_k = min(gap_k, d - self.radius)
                 if d - self.radius < CONTACT_GAP:
                     found.append(Contact(k, g, j, point, (centres[k] - point) / d))

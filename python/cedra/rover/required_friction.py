@@ -268,12 +268,12 @@ def _settle(rover: PlanarRover, profile: Staircase, blocks, guess, phase, where)
     try:
         v, _ = rover.pose(blocks, best[0].x, best[0].coords, released=(k,), where=where)
         carried = rover.describe_pose(v, blocks, profile.height, k, riser)
-        if carried.gaps[k] > HANGS:
-            candidate = evaluate(carried)
-            if candidate[1].ratio < best[1].ratio:
-                best = candidate
     except PoseError:
-        pass                        # it cannot be carried there: the pose that climbs stands
+        carried = None              # it cannot be carried there: the pose that climbs stands
+    if carried is not None and carried.gaps[k] > HANGS:
+        candidate = evaluate(carried)
+        if candidate[1].ratio < best[1].ratio:
+            best = candidate
     for other in range(len(rover.groups)):
         if other == k:
             continue
@@ -305,6 +305,24 @@ def _rest_loads(rover: PlanarRover, blocks, design) -> np.ndarray:
     return loads
 
 
+def _roll_to(rover: PlanarRover, blocks, v, k, target, ds, ix, iz) -> np.ndarray:
+    """A guess for the pose with group k's wheel at `target` (its next lift-off): from the last pose, the wheel rolled
+    there along its tread in steps of ds, the others held down (on stairs a pose shifted at once would put wheels
+    inside the profile); the last pose moved by the wheel's offset where a step fails."""
+    start = np.array(rover.geometry(v, rover.par)[0])[:, k]
+    n = max(1, int(math.ceil(np.linalg.norm(target - start) / ds)))
+    guess = v.copy()
+    try:
+        for t in np.linspace(0, 1, n + 1)[1:]:
+            guess, _ = rover.pose(blocks, None, guess, pin=(k, start + t * (target - start)))
+        return guess
+    except PoseError:
+        shifted = v.copy()
+        shifted[ix] += target[0] - start[0]
+        shifted[iz] += target[1] - start[1]
+        return shifted
+
+
 def required_friction(kind: RoverKind, profile: Staircase, params: dict | None = None, ds: float | None = None,
                       rover: PlanarRover | None = None) -> Climb:
     """The climb of `kind` (its parameters' defaults, updated by `params`) up `profile`: every pose's required
@@ -327,11 +345,7 @@ def required_friction(kind: RoverKind, profile: Staircase, params: dict | None =
     results, v = [], design.copy()
     for _, k, riser in phases:
         path = profile.path(riser, R, ds)
-        # from the last pose, moved so that this wheel is at its lift-off
-        v = v.copy()
-        centre = np.array(rover.geometry(v, rover.par)[0])[:, k]
-        v[ix] += path[0][1][0] - centre[0]
-        v[iz] += path[0][1][1] - centre[1]
+        v = _roll_to(rover, blocks, v, k, path[0][1], ds, ix, iz)
         for s, centre in path:
             where = (f"on {_what(profile)} with wheel {rover.groups[k]} at riser {riser + 1}, {s:.4f} m "
                      f"from its lift-off (centre {centre[0]:.4f}, {centre[1]:.4f} m)")
