@@ -71,3 +71,32 @@ def test_highest_over_per_friction():
     assert best[0.8] == (0.195, False)          # 3 R_w over, but 2 R_w below it is not
     assert np.isnan(best[0.4][0])
 
+
+
+def statics_rows(out: Path, terrain: str) -> dict:
+    """The quasi-static table of rovers.md for the step or the stairs as {(rover, h / R_w): row}."""
+    lines = (out / "rovers.md").read_text().splitlines()
+    first = "| rover | h / R_w |" if terrain == "step" else "| rover | rise / R_w |"
+    head = next(k for k, line in enumerate(lines) if line.startswith(first))
+    names = [c.strip() for c in lines[head].strip("|").split("|")]
+    rows = {}
+    for line in lines[head + 2:]:
+        if not line.startswith("|"):
+            break
+        cells = dict(zip(names, (c.strip() for c in line.strip("|").split("|"))))
+        rows[(cells["rover"], float(cells[names[1]]))] = cells
+    return rows
+
+
+def test_the_quick_report_draws_the_required_friction_and_the_virtual_centres(report):
+    """The quick form has the quasi-static curve for both rovers: finite on the step up to 2 R_w, rising with h up
+    to the wheel radius (the edge's contact steepens), and both figures."""
+    assert (report / "rovers_statics.png").stat().st_size > 10_000
+    assert (report / "rovers_centres.png").stat().st_size > 10_000
+    rows = statics_rows(report, "step")
+    for rover in R.ROVERS:
+        ratios = [float(rows[(rover, h)]["required friction"]) for h in (0.5, 1.0, 1.5, 2.0)]
+        assert all(np.isfinite(ratios)) and all(r > 0 for r in ratios), (rover, ratios)
+        assert ratios[1] > ratios[0], (rover, ratios)
+    text = (report / "rovers.md").read_text()
+    assert "| CEDRA | theta4 | 6 |" in text        # the fork's virtual centre is in the table

@@ -17,6 +17,9 @@
    (cedra.run.sweep.execute, tables in out/rovers/) and drawn side by side (<out>/rovers_maps.png,
    <out>/rovers_controllers.png) with, per terrain and mu, the highest obstacle each rover gets over. The six
    equal-torque maps run again at solver.tol = 1e-8, and the report says whether every verdict is the same.
+3. **The field's quasi-static metrics** (cedra.reports.rovers_statics; with --quick on fewer heights): the friction
+   a sharp step and the stairs require over their height, the torque it needs, the virtual centres of rotation,
+   and where the maps' verdicts differ from the quasi-static one.
 
 Writes <out>/rovers.md (and the figures); prints the tables.
 """
@@ -300,7 +303,7 @@ def draw_controllers(maps, path: Path) -> Path:
 
 # ------------------------------------------------------------------------------------------------ the report
 
-def write(out: Path, rows, maps, command, wall, load_at_start, checks=None) -> Path:
+def write(out: Path, rows, maps, command, wall, load_at_start, checks=None, statics=None) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# CEDRA and the rocker-bogie", "", provenance(command, wall, load_at_start), "",
              "## The paper's run, both rovers, three controllers", "",
@@ -329,6 +332,7 @@ def write(out: Path, rows, maps, command, wall, load_at_start, checks=None) -> P
         lines += ["", "![the controllers' maps](rovers_controllers.png)", ""]
     else:
         lines += ["The climbing maps were not run (--quick).", ""]
+    lines += statics or []
     path = out / "rovers.md"
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -345,8 +349,12 @@ def main(args) -> int:
     if not args.quick:
         log("the climbing maps (nine sweeps; the six equal-torque maps again at a tight tolerance):")
         maps, checks = run_maps(build, quiet=args.quiet, log=log)
+    log("the quasi-static climbs (both rovers, the step over its height, the stairs):")
+    from cedra.reports.rovers_statics import section, table
+    statics, results = section(Path(args.out), args.quick, maps)
     command = "python -m cedra report rovers" + (" --quick" if args.quick else "")
-    path = write(Path(args.out), rows, maps, command, time.perf_counter() - t0, load_at_start, checks)
+    path = write(Path(args.out), rows, maps, command, time.perf_counter() - t0, load_at_start, checks, statics)
+    print("\n".join(table(results, "step") + table(results, "stairs")))
     print("\n".join(measures_table(rows)))
     if maps:
         print("\n".join(maps_table(maps, checks)))
