@@ -290,3 +290,22 @@ def outer(sys: HybridSystem, run: Run, starts: np.ndarray, U_start: np.ndarray, 
 
 def run_describe(sys: HybridSystem, e: Event) -> str:
     return f"{sys.laws[e.law]} {'on' if e.on else 'off'} near t = {e.time:.4f} s"
+
+
+def phase_path(sys: HybridSystem, result: dict, step: float) -> np.ndarray:
+    """The solution's own trajectory at every `step` from 0: each sample integrated in its phase's mode from the
+    phase's start node over the time into the phase (the states the replay is compared with)."""
+    X, U, H, phases = result["X"], result["U"], result["H"], result["phases"]
+    starts = np.r_[0.0, np.cumsum(H)]
+    total = starts[-1]
+    out = [X[:, 0]]
+    for t in np.arange(1, int(round(total / step)) + 1) * step:
+        p = min(int(np.searchsorted(starts, t, side="left")) - 1, len(phases) - 1)
+        p = max(p, 0)
+        into = t - starts[p]
+        if into <= 0:
+            out.append(X[:, p])
+            continue
+        F = sys.integrator(phases[p].mode)
+        out.append(np.array(F(x0=X[:, p], p=np.r_[U[phases[p].interval], into])["xf"]).ravel())
+    return np.array(out).T
