@@ -1,7 +1,7 @@
 """Hybrid multiple shooting (method = "hybrid"): the events of a run located on their laws, a mode sequence that
-cannot be formed failing with file, key and reason, a phase's sensitivities against finite differences (casadi
-issue 4383: CVODES Jacobians with several parameter directions), and a wheel dropped onto compliant ground whose
-touch-down time is a decision: its optimum against a brute-force search over that time, each candidate solved in
+cannot be formed failing with file, key and reason, a phase's sensitivities against finite differences (CVODES
+Jacobians in several parameter directions at once are reported wrong: github.com/casadi/casadi/issues/4383), and
+a wheel dropped onto compliant ground whose touch-down time is a decision: its optimum against a brute-force search over that time, each candidate solved in
 closed form (the phases are linear, so the torques of a fixed touch-down time are a least-squares solution)."""
 from __future__ import annotations
 
@@ -151,8 +151,8 @@ def test_the_outer_loop_solves_again_on_the_replays_sequence():
 
 def test_the_phase_jacobian_is_the_finite_differences():
     """One phase of the rover (bump2d, every wheel on the ground: 14 states, the four torques and the phase's
-    duration) integrated with its sensitivities in every direction at once, against central differences (casadi
-    issue 4383 reports wrong CVODES Jacobians with three or more parameter directions)."""
+    duration) integrated with its sensitivities in every direction at once, against central differences
+    (github.com/casadi/casadi/issues/4383 reports wrong CVODES Jacobians in three or more parameter directions)."""
     problem = optimize.parse({"scene": "bump2d", "objective": "energy", "margin": -0.5, "interval": 0.1,
                               "method": "hybrid", "solver": {"integrator_tol": 1e-10}}, "jac.toml")
     from cedra.optimize.modes import RoverHybrid

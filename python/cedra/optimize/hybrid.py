@@ -5,7 +5,8 @@ indicator) and is binned into the control grid (Schedule). Each control interval
 phases; each phase is one CVODES integration of its mode's law, time-scaled (dx/ds = h f_mode(x, u), s in
 [0, 1]) so that its duration h is a decision: the event times move inside their control intervals while the
 torque stays piecewise constant on the grid. The phases are split here rather than by an integrator's event
-detection, which gives no sensitivities through the event (casadi issues 2201, 4303).
+detection, which gives no sensitivities through the event (github.com/casadi/casadi/issues/2201 and
+/issues/4303).
 
 Constraints (transcribe): the defects of every phase; the phases of an interval fill it; at each event its
 guard (the switching law's branch zero: the penetration at a touch-down, the normal law at a clip, the angle
@@ -258,7 +259,8 @@ def outer(sys: HybridSystem, run: Run, starts: np.ndarray, U_start: np.ndarray, 
     schedule's and no event time sits on its bound (at most `rounds` solves). Returns the last result and a
     summary of every round."""
     n = U_start.shape[0]
-    schedule = schedule_of(run, n, dt, guard_rate, min_phase, path)
+    # an event of the guess within min_phase of a node is moved off it (the solver moves it back if it must)
+    schedule = schedule_of(run, n, dt, guard_rate, min_phase, path, clamp=True)
     X0, H0 = start_point(schedule, starts, run)
     U0 = U_start
     history = []
