@@ -16,6 +16,7 @@ from cedra.optimize.fmu_runs import controller_run, initial_guess, measures, rep
 from cedra.optimize.problem import GUESSES, REPLAY_STEP, Problem, ProblemError, load
 from cedra.optimize.report import arrival, write
 from cedra.optimize.nlp import continuation
+from cedra.optimize.modes import RoverHybrid
 
 CONTROLLER_STOP = 40.0       # s: the controllers' runs stop here if they have not arrived
 
@@ -25,7 +26,9 @@ def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
     summary (also <out>/result.json)."""
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     t_start = time.perf_counter()
-    dyn = Dynamics(problem)
+    # the hybrid method's equations are the modes' (cedra.optimize.modes); the controllers' runs and the replay
+    # need only the scene's tables, which both carry
+    dyn = RoverHybrid(problem) if problem.method == "hybrid" else Dynamics(problem)
     goal_x = goal(problem, dyn)
     runs = {}
     for mode in GUESSES:
@@ -49,10 +52,15 @@ def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
     n = int(round(horizon / dt))
     X_guess, U_guess = initial_guess(names, rows, n, dt)
     x0 = X_guess[:, 0]
-    say(f"solving: {n} intervals of {dt:g} s, objective {problem.objective}, from the {problem.guess} run")
-    result, stages = continuation(problem, dyn, x0, X_guess, U_guess, dt, goal_x, say, log=not quiet)
+    say(f"solving: {n} intervals of {dt:g} s, objective {problem.objective}, from the {problem.guess} run"
+        + (", the contact-mode sequence fixed" if problem.method == "hybrid" else ""))
+    if problem.method == "hybrid":
+        result, stages, path = hybrid_solve(problem, dyn, x0, X_guess, U_guess, dt, goal_x, build_dir, say,
+                                            log=not quiet)
+    else:
+        result, stages = continuation(problem, dyn, x0, X_guess, U_guess, dt, goal_x, say, log=not quiet)
+        path = model_path(dyn, x0, result["U"], result["dt"], problem.integrator_tol)
     replay_names, replay_rows, replay_ok = replay(problem, dyn, x0, result["U"], result["dt"], build_dir)
-    path = model_path(dyn, x0, result["U"], result["dt"], problem.integrator_tol)
     k = min(path.shape[1], replay_rows.shape[0])
     col = {nm: replay_rows[:k, j] for j, nm in enumerate(replay_names)}
     deviation = float(np.max(np.hypot(col["body.x"] - path[0, :k], col["body.z"] - path[1, :k])))
@@ -70,12 +78,45 @@ def run(problem: Problem, out_dir, build_dir="build", quiet=False) -> dict:
                    nlp_objective=result["objective"],
                    replay_ok=replay_ok, replay_deviation=deviation, node_deviation=node_deviation, optimum=m_opt,
                    controllers={mode: runs[mode][2] for mode in GUESSES}, guess=problem.guess,
-                   final_x_optimizer=float(result["X"][0, -1]), wall=time.perf_counter() - t_start)
+                   final_x_optimizer=float(result["X"][0, -1]), wall=time.perf_counter() - t_start,
+                   method=problem.method, events=result.get("events"))
     write(Path(out_dir), problem, summary, result, path, (replay_names, replay_rows), runs)
     say(f"replay through the FMU: body path within {deviation:.2e} m of the optimizer's; "
         f"optimum energy {m_opt['energy']:.3f}, peak |Fx|/Fn {m_opt['peak_friction']:.3f}, "
         f"arrives {arrival(m_opt)} -> {out_dir}")
     return summary
+
+
+def hybrid_solve(problem: Problem, sysm: RoverHybrid, x0, X_guess, U_guess, dt: float, goal_x: float, build_dir,
+                 say, log: bool = False):
+    """method = "hybrid": the guess's events (the FMU's run, each interval re-integrated from its node with the
+    FMU's law mode by mode), the outer loop of solves on the mode sequence, each replayed through the FMU.
+    Returns (result, one summary per round, the optimizer's own path at the replay's step)."""
+    from cedra.optimize import hybrid
+    from cedra.optimize.dynamics import state_bounds
+    from cedra.optimize.fmu_runs import states_of
+    starts = sysm.reduced(X_guess)
+    run = sysm.simulate(starts, U_guess, dt)
+    say(f"the guess's mode sequence: {len(run.events)} events")
+    n = U_guess.shape[0]
+    per = int(round(dt / REPLAY_STEP))
+
+    def terminal(xe):
+        return xe[0] - goal_x, 0.0, np.inf, "the goal"
+
+    def fmu_nodes(U):
+        names, rows, _ = replay(problem, sysm, x0, U, dt, build_dir)
+        X = states_of(names, rows)
+        return sysm.reduced(X[:, np.minimum(np.arange(n + 1) * per, X.shape[1] - 1)])
+    lo, hi = (sysm.reduced(b) for b in state_bounds(sysm))
+    result, history = hybrid.outer(
+        sysm, run, starts, U_guess, dt, sysm.reduced(x0), terminal, fmu_nodes, problem.torque_max, [2, 2, 1, 1],
+        problem.guard_rate, problem.min_phase, rounds=problem.rounds, say=say, path=problem.path,
+        max_iter=problem.max_iter, tol=problem.tol, hessian=problem.hessian[0], proximal=problem.proximal[0],
+        threads=problem.threads, state_lo=lo, state_hi=hi, log=log)
+    stages = [{"width": 0.0, "hessian": problem.hessian[0], "proximal": problem.proximal[0]} | h for h in history]
+    result = result | {"dt": dt, "width": 0.0, "X": hybrid.node_states(result), "events": len(result["event_times"])}
+    return result, stages, hybrid.phase_path(sysm, result, REPLAY_STEP)
 
 
 def add_parser(sub):
@@ -94,5 +135,9 @@ def main(args) -> int:
     except (ProblemError, SceneError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    summary = run(problem, args.out or f"out/optimize/{problem.name}", args.build, args.quiet)
+    try:
+        summary = run(problem, args.out or f"out/optimize/{problem.name}", args.build, args.quiet)
+    except ProblemError as e:           # a mode sequence the guess cannot form (method = "hybrid")
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     return 0 if summary["success"] else 1

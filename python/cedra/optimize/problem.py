@@ -13,6 +13,8 @@ each error naming the file, the key and the reason (as scene files do: cedra.mod
                                     # equal_torques | traction_control (sampled on the grid)
     speed = 0.2                     # m/s: the controllers' commanded speed
     regularization = 1e-3           # weight of energy added to peak_friction and time
+    method = "shooting"             # shooting: multiple shooting on the control grid (the law smoothed or not) |
+                                    # hybrid: the contact-mode sequence of the guess fixed, the event times free
     [inputs]                        # the scene's inputs for this problem (terrain_h, mu, ...; not the torques)
     [solver]
     max_iter = 200                  # IPOPT iterations (of each stage)
@@ -30,6 +32,9 @@ each error naming the file, the key and the reason (as scene files do: cedra.mod
                                     # decreasing, each in [0, 0.01]; 0 is the FMU's law
     spin_rates = "nodes"            # the wheels' spin rates: decisions at every node | carried: through the
                                     # intervals (the shooting nodes hold the body and joint states)
+    guard_rate = 1e-5               # hybrid: m/s, the least rate of a guard at its event (no event grazes)
+    min_phase = 1e-4                # hybrid: s, the shortest phase (an event this close to a node is on its bound)
+    rounds = 5                      # hybrid: the outer loop's solves at most (re-binned on the replay's events)
 """
 from __future__ import annotations
 
@@ -43,8 +48,11 @@ OBJECTIVES = ("energy", "peak_friction", "time")
 GUESSES = {"equal_torques": 0, "inverse_kinematics": 1, "traction_control": 2}     # ctrl.mode of the drive controller
 REPLAY_STEP = 0.01           # s: the FMU replay's communication step (the controllers' runs use it too)
 TOP_KEYS = {"name", "scene", "objective", "margin", "interval", "horizon", "torque_max", "start_x", "guess", "speed",
-            "regularization", "inputs", "solver"}
-SOLVER_KEYS = {"max_iter", "tol", "integrator_tol", "threads", "hessian", "proximal", "smoothing", "spin_rates"}
+            "regularization", "method", "inputs", "solver"}
+SOLVER_KEYS = {"max_iter", "tol", "integrator_tol", "threads", "hessian", "proximal", "smoothing", "spin_rates",
+               "guard_rate", "min_phase", "rounds"}
+METHODS = ("hybrid", "shooting")
+HYBRID_ONLY = ("guard_rate", "min_phase", "rounds")
 SMOOTHING_MAX = 0.01         # m: the largest smoothing width of the contact law a problem may give
 HESSIANS = ("objective", "limited-memory", "differenced")
 SPIN_RATES = ("carried", "nodes")     # the wheels' spin rates: carried through the intervals | node decisions
@@ -76,6 +84,10 @@ class Problem:
     proximal: tuple = (0.0,)
     smoothing: tuple = (0.0,)
     spin_rates: str = "nodes"
+    method: str = "shooting"
+    guard_rate: float = 1e-5
+    min_phase: float = 1e-4
+    rounds: int = 5
     path: str = ""
 
 
@@ -130,6 +142,7 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
     reg = _number(path, "regularization", data.get("regularization", 1e-3), 0.0, 1.0)
     problem = Problem(name, scene, objective, margin, interval, horizon, torque_max, start_x, guess, speed, reg,
                       path=str(path))
+    problem.method = _choice(path, "method", data.get("method", "shooting"), METHODS)
     problem.inputs = _inputs(path, data.get("inputs", {}), scene)
     solver = data.get("solver", {})
     if not isinstance(solver, dict):
@@ -152,6 +165,14 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
             problem.smoothing = _widths(path, k, value)
         elif key == "spin_rates":
             problem.spin_rates = _choice(path, k, value, SPIN_RATES)
+        elif key == "guard_rate":
+            problem.guard_rate = _number(path, k, value, 0.0, 1.0)
+        elif key == "min_phase":
+            problem.min_phase = _number(path, k, value, 1e-9, 0.25 * interval)
+        elif key == "rounds":
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 50:
+                _fail(path, k, f"expected an integer in 1..50, got {value!r}")
+            problem.rounds = value
         elif key == "threads":
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:
                 _fail(path, k, f"expected an integer in 1..64, got {value!r}")
@@ -167,7 +188,29 @@ def parse(data: dict, path: str = "<problem>") -> Problem:
     if "differenced" in problem.hessian and problem.spin_rates == "carried" and objective != "energy":
         _fail(path, "solver.hessian", "'differenced' with the spin rates carried is formed for the energy "
               "objective (with peak_friction: solver.spin_rates = \"nodes\")")
+    if problem.method == "hybrid":
+        _hybrid_checks(path, problem, solver)
+    else:
+        for key in HYBRID_ONLY:
+            if key in solver:
+                _fail(path, f"solver.{key}", "is a setting of method = \"hybrid\"")
     return problem
+
+
+def _hybrid_checks(path, problem: Problem, solver: dict):
+    """What method = "hybrid" forms: the FMU's law on every phase (no smoothing), the energy objective on a fixed
+    horizon, every shooting state a node, scenes whose switching laws are wheel contacts and joint stops."""
+    if problem.objective != "energy":
+        _fail(path, "objective", f"method = \"hybrid\" is formed for the energy objective, got {problem.objective!r}")
+    if "smoothing" in solver and problem.smoothing != (0.0,):
+        _fail(path, "solver.smoothing", "method = \"hybrid\" integrates the FMU's law in every phase: no smoothing")
+    if problem.spin_rates != "nodes":
+        _fail(path, "solver.spin_rates", "method = \"hybrid\" makes every shooting state a node decision")
+    if any(h == "differenced" for h in problem.hessian) or len(problem.hessian) > 1 or len(problem.proximal) > 1:
+        _fail(path, "solver.hessian", "method = \"hybrid\" takes one Hessian: objective or limited-memory")
+    if load_shipped(problem.scene).options.chassis:
+        _fail(path, "method", f"\"hybrid\" is formed for scenes without chassis contact (scene {problem.scene} "
+              "has collision points)")
 
 
 def _stage_values(value) -> list:

@@ -106,6 +106,17 @@ def report_text(problem: Problem, s: dict) -> str:
 
 
 def _stage_lines(stages) -> list[str]:
+    if stages and "round" in stages[0]:
+        lines = ["Hybrid multiple shooting, the contact-mode sequence fixed; each round after the first solved on the "
+                 "mode sequence of the previous round's FMU replay, from its solution:", "",
+                 "| round | events | phases | IPOPT | iterations | time [s] | constraint violation (largest) "
+                 "| objective | the replay's events |", "|---|---|---|---|---|---|---|---|---|"]
+        for st in stages:
+            lines.append(f"| {st['round']} | {st['events']} | {st['phases']} | {st['status']} | {st['iterations']} "
+                         f"| {st['wall']:.1f} | {st['violation']:.1e} ({st['worst']}) | {st['objective']:.6g} "
+                         f"| {st['replay_events']}{'' if st['same_sequence'] else ', another sequence'}"
+                         f"{'; on a bound: ' + ', '.join(st['at_bound']) if st['at_bound'] else ''} |")
+        return lines + [""]
     if len(stages) < 2:
         return []
     lines = ["Continuation (each stage started from the previous one's solution and multipliers):", "",
