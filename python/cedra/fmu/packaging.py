@@ -58,11 +58,24 @@ LARGE_FUNCTION_FLAGS = ["-O1"]
 #   cedra_settle 68.5 s at -O2, 13.4 s at -O1;
 # - cedra_out: once per communication step (stairs3d: 100 a simulated second against ~5800 of cedra_f);
 #   21.7 s -> 6.1 s;
-# - cedra_fcjac: once per Jacobian, and only while a collision point touches; 22.6 s -> 11.5 s.
+# - cedra_fcjac: once per Jacobian, and only while a collision point touches; 22.6 s -> 11.5 s; likewise the parts
+#   only it calls (cedra.models.parts: the chassis' Jacobian and the point-contact part's).
 # The CPU of stairs3d's 10 s and bump2d's 15 s main-job runs with cedra_out and cedra_fcjac at -O1: 0.985 and
-# 0.987 of the runs at -O2 (the least of 3 each, the same machine; within its noise). Every generated function at
-# -O1 costs bump2d's run 18 % (cedra_f, cedra_rjac and cedra_switch are the hot ones): they stay at -O2.
-COLD_FUNCTIONS = ("cedra_settle.c", "cedra_guess.c", "cedra_out.c", "cedra_fcjac.c")
+# 0.987 of the runs at -O2 (the least of 3 each, the same machine; within its noise).
+COLD_FUNCTIONS = ("cedra_settle.c", "cedra_guess.c", "cedra_out.c", "cedra_fcjac.c", "cedra_part_chassis_jac.c",
+                  "cedra_part_point_jac.c")
+# Of the hot functions, the Jacobians (every *jac.c: cedra_rjac and the parts it calls), cedra_switch and cedra_fc
+# are at -O1 too: the dynamics' Jacobian part alone is 30 s of gcc at -O2 on a 3D scene with chassis points, 8 s at
+# -O1, while the runs' CPU with them at -O1 is 1.019 (stairs3d, 10 s), 1.003 (bump2d, 15 s) and 0.995 (bump3d,
+# 10 s) of the runs with them at -O2 (the least of 3 each, the speed loop of tools/profile; within the machine's
+# noise). cedra_f and the parts it calls stay at -O2: they are evaluated several times per step.
+LIGHT_HOT_FUNCTIONS = ("cedra_switch.c", "cedra_fc.c")
+
+
+def light_optimization(file_name: str) -> bool:
+    """Whether a generated C file is compiled at -O1 whatever its size (COLD_FUNCTIONS, the Jacobians,
+    LIGHT_HOT_FUNCTIONS)."""
+    return file_name in COLD_FUNCTIONS or file_name in LIGHT_HOT_FUNCTIONS or file_name.endswith("jac.c")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 # the hand-written headers of each kind of block (the C files: modelDescription/generate.py HAND_WRITTEN_C)
 HAND_WRITTEN_H = {
@@ -125,7 +138,7 @@ def compile_flags(file_name: str, size: int, extra_cflags=()) -> list[str]:
     own = HAND_WRITTEN_CFLAGS
     if is_generated(file_name):
         own = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="]
-        if size > LARGE_FUNCTION_BYTES or file_name in COLD_FUNCTIONS:
+        if size > LARGE_FUNCTION_BYTES or light_optimization(file_name):
             own += LARGE_FUNCTION_FLAGS
     return CFLAGS + own + list(extra_cflags)
 

@@ -251,8 +251,22 @@ class ModelParts:
         Ws, dWs = self._wheels(q, u, inp, par, True, use)
         dr_dq, dr_du, dp_dq, dp_du = use("cedra_part_dyn_jac")(q, u, a, inp, par, ca.vertcat(*Ws), ca.horzcat(*dWs))
         cedra_rjac = ca.Function("cedra_rjac", [q, u, a, inp, par], [dr_dq, dr_du, dp_dq, dp_du])
-        fns = {"cedra_f": cedra_f, "cedra_rjac": cedra_rjac}
-        return fns | (self.chassis_functions(parts) if self.m.chassis else {})
+        fns = {"cedra_f": cedra_f, "cedra_rjac": cedra_rjac} | (self.chassis_functions(parts) if self.m.chassis else {})
+        return fns | {"cedra_settle": self._settle(fns)}
+
+    def _settle(self, fns) -> ca.Function:
+        """cedra_settle from the composed functions: the static residual f(q, 0) (+ the chassis' force) on the settle
+        coordinates and its Jacobian, which at a = 0 is -d(M a - f)/dq (+ dQc/dq), rows and columns those
+        coordinates."""
+        n, sidx = self.n, self.m.settle_idx
+        q, zero = ca.MX.sym("q", n), ca.MX.zeros(n, 1)
+        inp, par = ca.MX.sym("inp", self.m.inp.numel()), ca.MX.sym("par", self.m.par.numel())
+        res = fns["cedra_f"](q, zero, inp, par)[0]
+        jac = -fns["cedra_rjac"](q, zero, zero, inp, par)[0]
+        if "cedra_fc" in fns:
+            res += fns["cedra_fc"](q, zero, inp, par)
+            jac += fns["cedra_fcjac"](q, zero, inp, par)[0]
+        return ca.Function("cedra_settle", [q, inp, par], [res[sidx], jac[sidx, sidx]])
 
     # ---------------- the body's and links' collision points (docs/model.md, Chassis and links) ----------------
     def _chassis_parts(self):

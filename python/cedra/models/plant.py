@@ -562,8 +562,8 @@ class CedraModel:
             res = ca.vertcat(*[-self.contacts[k - 1]["geo"].depth for k in wheels])
         else:
             res = ca.substitute(self.f + self.chassis_force, u, ca.DM.zeros(n))[sidx]
-        jac = ca.jacobian(res, q)[:, sidx]
-        fns = {}
+        jac = None if "cedra_settle" in composed else ca.jacobian(res, q)[:, sidx]
+        fns = {} if jac is None else {"cedra_settle": self._contract("cedra_settle", [q, inp, par], [res, jac], True, one)}
         res_ = self.resolve      # the contact search's frozen symbols, a heightmap's contact points
         if self.rigid:
             vc = ca.vertcat(*[c["vc"] for c in self.rigid_contacts])
@@ -591,7 +591,6 @@ class CedraModel:
             "cedra_M": _function("cedra_M", [q, par], [self.M]),
             "cedra_out": self._contract("cedra_out", [q, u, z, inp, par] + ([self.lam] if self.rigid else []), [y],
                                         True, one),
-            "cedra_settle": self._contract("cedra_settle", [q, inp, par], [res, jac], True, one),
             "cedra_guess": _function("cedra_guess", [q, inp, par], [self.guess()]),
             "cedra_check": _function("cedra_check", [q, u, inp, par], [self.check()]),
         } | terrain_functions(self.terrain) | composed
