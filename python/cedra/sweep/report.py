@@ -12,7 +12,8 @@ import math
 import statistics
 from pathlib import Path
 
-from cedra.run.sweep_map import cell, index
+from cedra.sweep.maps import cell, index
+
 
 SLOW_S = 10.0          # s of wall time: a run slower than this is listed
 
@@ -36,7 +37,7 @@ def _climbs(cat: str) -> bool:
 
 
 class Axes:
-    """The map's axes over a sweep's table: each row's place (panel, x, y) and category (sweep_map.cell)."""
+    """The map's axes over a sweep's table: each row's place (panel, x, y) and category (maps.cell)."""
 
     def __init__(self, sw, rows):
         spec = sw.map
@@ -119,7 +120,7 @@ def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float,
     """Write <out>/<name>.md; check = (the solver parameter, its value, the tight sweep, its rows) after --check-tol
     or --check-h."""
     from cedra.reports.common import provenance
-    from cedra.run.verdicts import VERDICTS
+    from cedra.sweep.verdicts import VERDICTS
     ax = Axes(sw, rows)
     spec = sw.map
     lines = [f"# {spec.get('title', sw.name)}", "", provenance(command, wall, load_at_start), ""]
