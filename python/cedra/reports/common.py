@@ -21,45 +21,6 @@ from cedra.contract import SOLVER_METHODS
 SOLVER_CODES = {name: k for k, name in enumerate(SOLVER_METHODS)}
 
 
-# ------------------------------------------------------------------ where a report's figures come from
-def load_average() -> float:
-    try:
-        import os
-        return os.getloadavg()[0]
-    except OSError:
-        return float("nan")
-
-
-def provenance(command: str, wall: float, load_at_start: float) -> str:
-    """One Markdown line: the command, when, which code and which machine made a report's figures."""
-    import os
-    import platform
-    import subprocess
-    from datetime import datetime, timezone
-    from cedra import __version__
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        here = Path(__file__).resolve().parent
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=here,
-                             timeout=10).stdout.strip()
-        code = ["python", "fmu_src", "modelDescription", "examples", "tools"]     # what makes the figures (not docs)
-        if rev and subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", *code],
-                                  capture_output=True, text=True, cwd=here.parents[2], timeout=10).stdout.strip():
-            rev += " with local changes to the code"
-    except (OSError, subprocess.SubprocessError):
-        rev = ""
-    when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    return (f"Made by `{command}` on {when} in {wall:.0f} s: cedra {__version__}" + (f" (git {rev})" if rev else "")
-            + f", {cpu}, {os.cpu_count()} cores, load average {load_at_start:.1f} at the start.")
-
-
 def announce(what: str, expected: str, quiet: bool = False) -> None:
     """A long report says how long it takes before it starts (stderr)."""
     import sys
@@ -482,12 +443,6 @@ def fmt(v, digits=3):
     if not np.isfinite(v):
         return str(v)
     return f"{v:.{digits}g}"
-
-
-def md_table(header, rows) -> str:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(str(c).replace("|", "/") for c in r) + " |" for r in rows]
-    return "\n".join(out)
 
 
 def fmu_path(build, scene_name) -> Path:

@@ -3,7 +3,7 @@
     python -m cedra report figures [--figure NAME ...] [--build build] [--out out/report] [--quiet]
 
 Each figure prints its lines and a table; all of them together write <out>/figures.md with the command, the date,
-the code's version, the CPU and the load (`cedra.reports.common.provenance`). A figure that needs a variant of an
+the code's version, the CPU and the load (`cedra.pages.provenance`). A figure that needs a variant of an
 FMU (no switch location, other compiler flags) builds it from this tree's sources under <out>/figures/ with
 `cedra.fmu.packaging.build_fmu(..., extra_cflags)`; the rest run the FMUs in <build>.
 
@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cedra.reports.common import SOLVER_CODES, fmu_path, load_average, md_table, provenance
+from cedra.pages import load_average, md_table, provenance
+from cedra.reports.common import SOLVER_CODES, fmu_path
 
 REPEAT = 3
 WIDE_OPEN = {"solver.max_wall_time": 1e3}          # no run stops on the per-call wall-clock budget under load

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cedra.reports.common import load_average, provenance
+from cedra.pages import load_average, provenance
 from cedra.run.cosim import DriveLoop
 from cedra.run.scenario import EXAMPLES, fmu
 from cedra.sweep import obstacle_end, variant_fmu

@@ -44,7 +44,7 @@ def command(args) -> str:
 
 def main(args) -> int:
     import sys
-    from cedra.reports.common import load_average
+    from cedra.pages import load_average
     from cedra.sweep import report
     load_at_start = load_average()
     check_h = getattr(args, "check_h", None)         # argparse makes --check-tol and --check-h exclusive
