@@ -42,7 +42,7 @@ def run(out_dir="out/step_climb", build_dir="build", stop_time=None, quiet=False
     from cedra.run.scenario import fmu, parameters, run_loop, watch_run, write_csv
     from cedra.run.watch import plus_watched
     from cedra.models.scene import load_shipped
-    from cedra.run.sweep import obstacle_end
+    from cedra.sweep import obstacle_end
     stop_time = stop_time or STOP_TIME
     p = parameters(PARAMETERS, params)
     goal = obstacle_end("bump", load_shipped(FMUS[0]).inputs)       # the sweeps' goal line for the bump

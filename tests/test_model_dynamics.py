@@ -314,9 +314,9 @@ def test_function_sizes():
 
 
 def test_the_rover_kind_names_the_fixed_coordinates_and_its_2d_reduction():
-    """CEDRA through the rover interface (cedra.mechanics.rover): the fixed pose and spin names are its
+    """CEDRA through the rover interface (cedra.mechanics.rover_kind): the fixed pose and spin names are its
     coordinates, its planar reduction keeps 9 of 17, its stops and steering joints are among them."""
-    from cedra.mechanics.rover import POSE, SPINS
+    from cedra.mechanics.rover_kind import POSE, SPINS
     from cedra.models.plant import ModelOptions, projection
     from cedra.models.rovers import ROVERS
     kind = ROVERS["cedra"]

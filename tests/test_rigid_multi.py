@@ -10,7 +10,7 @@ import pytest
 from cedra.fmu.packaging import build_fmu
 from cedra.models.scene import load, load_shipped
 from cedra.run.simulate import run_bump
-from cedra.run.sweep import variant
+from cedra.sweep import variant
 
 ROOT = Path(__file__).resolve().parents[1]
 WEIGHT = (20 + 1 + 6 * 0.5) * 9.81          # the rover's weight (N): body, fork, six wheels

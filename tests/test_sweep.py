@@ -12,9 +12,10 @@ from pathlib import Path
 import psutil
 import pytest
 
-from cedra.run import sweep as sw_mod, verdicts
+from cedra import sweep as sw_mod
+from cedra.sweep import verdicts, worker
 from cedra.run.scenario import fmu
-from cedra.run.sweep import SweepError, execute, load, read_table
+from cedra.sweep import SweepError, execute, load, read_table
 
 BUILD = "build"
 
@@ -105,7 +106,7 @@ def test_shipped_sweeps_load():
 
 
 def test_nested_scenario_summaries_become_columns():
-    assert sw_mod._flat({"equal torques": {"mean_slip": 1.0, "x_end": 2.0}, "wall": 3.0}) == \
+    assert worker._flat({"equal torques": {"mean_slip": 1.0, "x_end": 2.0}, "wall": 3.0}) == \
         {"equal torques.mean_slip": 1.0, "equal torques.x_end": 2.0, "wall": 3.0}
 
 
@@ -277,7 +278,7 @@ def test_drives_option_runs_the_drives_variant(tmp_path, bump2d_fmu):
     rows = read_table(drives.table)
     assert len(rows) == 4
     by_id = {r["id"]: r for r in rows}
-    variant_fmu = sw_mod.Path(BUILD) / "variants" / "bump2d_drives.fmu"
+    variant_fmu = Path(BUILD) / "variants" / "bump2d_drives.fmu"
     with zipfile.ZipFile(variant_fmu) as z:
         md = ET.fromstring(z.read("modelDescription.xml"))
     assert md.get("modelName") == "bump2d_drives"
@@ -314,7 +315,7 @@ def test_drives_option_runs_the_drives_variant(tmp_path, bump2d_fmu):
     finally:
         packaging.HAND_WRITTEN_CFLAGS = flags
     mtime = variant_fmu.stat().st_mtime_ns
-    assert sw_mod._build(drives, BUILD) == variant_fmu and variant_fmu.stat().st_mtime_ns == mtime
+    assert sw_mod.sweep_fmu(drives, BUILD) == variant_fmu and variant_fmu.stat().st_mtime_ns == mtime
 
 
 # ------------------------------------------------------------------ the climbing map against single runs
@@ -355,7 +356,7 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, name):
     assert verdicts == {"climbs": "1", "fails": "0", "edge": "1", "edge_above": "0"}
     # the map of these runs (the cells of the other runs of their grid empty): both verdicts' colours are in it
     from PIL import Image
-    from cedra.run.sweep_map import draw
+    from cedra.sweep.maps import draw
     sw.grid = {"terrain_h": sorted({p["terrain_h"] for p in points.values()} | {heights[6]}),
                "terrain_w": [0.14625, 0.26], "mu": [0.2, 0.8]}
     png = draw(sw, read_table(sw.table))
@@ -363,7 +364,7 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, name):
     assert (0x5c, 0xb8, 0x5c) in pixels and (0xd9, 0x53, 0x4f) in pixels         # climbs (green), fails (red)
     # alone, through the main job's own loop (no early stop, the full 20 s): past the bump's end or not
     for name, p in points.items():
-        names, rows, _, info = run_bump(sw_mod._build(sw, BUILD), shipped.stop_time,
+        names, rows, _, info = run_bump(sw_mod.sweep_fmu(sw, BUILD), shipped.stop_time,
                                         {k: v for k, v in p.items() if k != "tau_max"})
         assert info["ok"], info["messages"][-2:]
         goal = 1.0 + 2.5 * p["terrain_w"]
@@ -371,7 +372,7 @@ def test_climbing_map_agrees_with_single_runs(tmp_path, name):
         assert int(np.min(cx) > goal) == int(verdicts[name]), (name, cx, goal)
     # on a bump narrower than a bogie and taller than the bogie's segment sits (w = R_w, h = 2.4 R_w) the rover
     # with chassis contact stops with its bogies on the bump: 'hung up', the chassis carrying load
-    hung = sw_mod.run_one(sw_mod.Path(sw_mod._build(sw, BUILD)).read_bytes(), "bump",
+    hung = sw_mod.run_one(Path(sw_mod.sweep_fmu(sw, BUILD)).read_bytes(), "bump",
                           dict(tau_max=4.0, terrain_h=2.4 * R_W, terrain_w=R_W, mu=1.0), shipped.stop_time, 60.0)
     assert hung["status"] == "ok" and hung["verdict"] == "hung up", hung
 
@@ -546,7 +547,7 @@ LAYOUT = {   # h = 0: over everywhere; 0.05: not monotonic at mu 0.8 (and a fail
 
 
 def test_map_draws_each_verdict_in_its_colour(tmp_path):
-    from cedra.run.sweep_map import VERDICT_COLOURS, draw
+    from cedra.sweep.maps import VERDICT_COLOURS, draw
     sw = load(write(tmp_path, MAP))
     sw.out.mkdir(parents=True)
     pixels = _colours(draw(sw, _synthetic(sw, LAYOUT)))
@@ -561,7 +562,7 @@ def test_map_draws_each_verdict_in_its_colour(tmp_path):
 
 
 def test_report_counts_tables_monotonicity_and_failures(tmp_path):
-    from cedra.run import sweep_report
+    from cedra.sweep import report as sweep_report
     sw = load(write(tmp_path, MAP))
     sw.out.mkdir(parents=True)
     rows = _synthetic(sw, LAYOUT)

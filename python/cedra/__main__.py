@@ -137,7 +137,7 @@ def cmd_watch(args):
 
 
 def cmd_sweep(args):
-    from cedra.run import sweep
+    from cedra import sweep
     return sweep.main(args)
 
 
@@ -238,7 +238,7 @@ def main(argv=None):
     ch.add_argument("-v", "--verbose", action="store_true", help="every problem of a failed check, not the first")
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.optimize.command import add_parser as add_optimize_parser
-    from cedra.run.sweep import add_parser as add_sweep_parser
+    from cedra.sweep import add_parser as add_sweep_parser
     from cedra.run.watch import add_parser as add_watch_parser
     add_fuzz_parser(sub)
     add_optimize_parser(sub)

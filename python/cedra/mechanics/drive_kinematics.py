@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from cedra.mechanics.rover import POSE, SPINS, RoverKind
+from cedra.mechanics.rover_kind import POSE, SPINS, RoverKind
 
 # the contact normal's vertical component the free vertical velocity divides by is held at this or more: a wheel
 # against a wall (psi_R -> 90 deg) would ask for an unbounded rate, this bounds it at 1 / cos(80 deg) = 5.8 times

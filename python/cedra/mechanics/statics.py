@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import casadi as ca
 
 from cedra.mechanics.drive_kinematics import _scene_coordinates, drive_kinematics
-from cedra.mechanics.rover import SPINS, RoverKind
+from cedra.mechanics.rover_kind import SPINS, RoverKind
 
 _FORMED: dict[tuple[str, str], "RoverStatics"] = {}
 BALANCE_ARGS = ("pitch", "roll", "joints", "psi", "par")

@@ -45,17 +45,16 @@ from __future__ import annotations
 import casadi as ca
 
 from cedra.mechanics.drive_kinematics import drive_kinematics
-from cedra.mechanics.statics import loads_given_tractions as generic_loads, rover_statics
+from cedra.mechanics.statics import equal_ratio_tractions, loads_given_tractions, rover_statics
 from cedra.rover.kinematics import KIN_PARAMS, drive_expressions, drive_symbols
 from cedra.rover.parameters import DEFAULTS, ROVER, STEER_LIMIT
 from cedra.mechanics.transforms import rot_z
-from cedra.rover.statics import GROUPS, PAIR, STATICS_PARAMS, balance, equal_ratio_tractions, \
-    loads_given_tractions, multiplicity, rolling_rates
+from cedra.rover.statics import GROUPS, PAIR, STATICS_PARAMS, balance, multiplicity, rolling_rates
 from cedra.contract import ModelSpec, Quantity
 
 WHEELS = range(1, 7)
 MODES = {"equal_torques": 0, "inverse_kinematics": 1, "traction_control": 2}
-# Newton steps on the common friction ratio (rover.statics.equal_ratio_tractions): 5 reach the root to 1e-9 of the
+# Newton steps on the common friction ratio (mechanics.statics.equal_ratio_tractions): 5 reach the root to 1e-9 of the
 # ratio on the test's random poses, so the cost of a sample is fixed
 TRACTION_NEWTON_STEPS = 5
 # the balance's parameters beyond the kinematics': the controller's own copy of the rover's masses and springs
@@ -277,7 +276,7 @@ def _loads(dims, i, p):
                    ca.vertcat(i["steer.theta[1]"], i["steer.theta[2]"]) if three else ca.DM.zeros(2),
                    ca.vertcat(*[i[f"wheel[{k}].psi_R"] for k in WHEELS]),
                    ca.vertcat(*[p[n] for n in STATICS_PARAMS]))
-    n0, B, _, _ = loads_given_tractions(dims, A, b)
+    n0, B, _, _ = loads_given_tractions(A, b, len(GROUPS[dims]), three)
     return n0, B
 
 
@@ -549,7 +548,7 @@ def _rover_loads_and_rolling(kind, dims, i, p):
     pose = (i["body.pitch"], i["body.roll"] if three else zero, ca.vertcat(*[i[a] for a in dk.angle_outputs]),
             ca.vertcat(*[i[f"wheel[{k}].psi_R"] for k in WHEELS]), ca.vertcat(*[p[n] for n in st.params]))
     A, b = st.balance(*pose)
-    n0, B, _, _ = generic_loads(A, b, len(st.groups), three)
+    n0, B, _, _ = loads_given_tractions(A, b, len(st.groups), three)
     velocity, omega = _body_motion(i, three)
     rates = ca.vertcat(*[i[r] if r is not None else 0 for r in dk.rate_outputs])
     return (n0, B), st.rolling(*pose, velocity, omega, rates)

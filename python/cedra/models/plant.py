@@ -22,7 +22,7 @@ from cedra.mechanics import rim
 from cedra.mechanics.kane import KaneSystem
 from cedra.rover.mechanism import drive_torque
 from cedra.contract import LazyFunctions, ModelSpec, Quantity
-from cedra.mechanics.rover import RoverKind
+from cedra.mechanics.rover_kind import RoverKind
 from cedra.mechanics.terrain import STAIRS_STEPS, TERRAIN_INPUTS, Terrain, terrain_inputs
 from cedra.models.rovers import ROVERS
 

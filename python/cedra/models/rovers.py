@@ -1,4 +1,4 @@
-"""The rovers a scene may name (`rover = "..."` in a scene file): each a cedra.mechanics.rover.RoverKind from
+"""The rovers a scene may name (`rover = "..."` in a scene file): each a cedra.mechanics.rover_kind.RoverKind from
 its own description."""
 from cedra.rover.mechanism import CEDRA
 from cedra.rover.rocker_bogie import ROCKER_BOGIE

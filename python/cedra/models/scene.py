@@ -49,7 +49,7 @@ TOP_KEYS = {"name", "description", "rover", "dims", "terrain", "heightmap", "sta
 
 
 # The boolean scene keys (ModelOptions fields) a sweep file may set in its [options] table to run a variant of its
-# scene (cedra.run.sweep): each builds a different model, so the variant FMU gets its own name.
+# scene (cedra.sweep): each builds a different model, so the variant FMU gets its own name.
 SWEEP_OPTIONS = ("drives", "chassis")
 
 

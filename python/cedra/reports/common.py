@@ -21,45 +21,6 @@ from cedra.contract import SOLVER_METHODS
 SOLVER_CODES = {name: k for k, name in enumerate(SOLVER_METHODS)}
 
 
-# ------------------------------------------------------------------ where a report's figures come from
-def load_average() -> float:
-    try:
-        import os
-        return os.getloadavg()[0]
-    except OSError:
-        return float("nan")
-
-
-def provenance(command: str, wall: float, load_at_start: float) -> str:
-    """One Markdown line: the command, when, which code and which machine made a report's figures."""
-    import os
-    import platform
-    import subprocess
-    from datetime import datetime, timezone
-    from cedra import __version__
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        here = Path(__file__).resolve().parent
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=here,
-                             timeout=10).stdout.strip()
-        code = ["python", "fmu_src", "modelDescription", "examples", "tools"]     # what makes the figures (not docs)
-        if rev and subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", *code],
-                                  capture_output=True, text=True, cwd=here.parents[2], timeout=10).stdout.strip():
-            rev += " with local changes to the code"
-    except (OSError, subprocess.SubprocessError):
-        rev = ""
-    when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    return (f"Made by `{command}` on {when} in {wall:.0f} s: cedra {__version__}" + (f" (git {rev})" if rev else "")
-            + f", {cpu}, {os.cpu_count()} cores, load average {load_at_start:.1f} at the start.")
-
-
 def announce(what: str, expected: str, quiet: bool = False) -> None:
     """A long report says how long it takes before it starts (stderr)."""
     import sys
@@ -484,12 +445,6 @@ def fmt(v, digits=3):
     return f"{v:.{digits}g}"
 
 
-def md_table(header, rows) -> str:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(str(c).replace("|", "/") for c in r) + " |" for r in rows]
-    return "\n".join(out)
-
-
 def fmu_path(build, scene_name) -> Path:
     """<build>/<scene_name>.fmu; a shipped scene's or drive controller's is built there first when it is missing or
     stale (cedra.run.scenario.fmu, which says so)."""
@@ -501,30 +456,80 @@ def fmu_path(build, scene_name) -> Path:
     return Path(build) / f"{scene_name}.fmu"
 
 
-def fmu_closed_loop(path, stop_time, settings: dict | None = None, label="", record=()):
-    """The paper's run through the FMU (docs/model.md; the main job's loop cedra.run.simulate.speed_loop), reading
-    only what the table needs (body.vx for the controller, body.x, the six wheel[i].Fn) in one fmi2GetReal per
-    sample. The loop calls the FMU's fmi2 functions with buffers made once, as a compiled master would (FMPy's
-    checked wrappers build the arrays on every call: ~20 us per sample on this machine, a fifth of a flat3d
-    sample), so the CPU time is the FMU's and not the Python glue's. Timed with time.process_time from
-    fmi2Instantiate (the static settle included) to the last step; the FMU's unzip is not timed. record: more
-    outputs read in the same call, returned as extra["series"][name] (arrays over the samples)."""
+FN = [f"wheel[{i}].Fn" for i in range(1, 7)]
+
+
+@dataclass
+class Loop:
+    """One run of the paper's closed loop (cedra.run.simulate.speed_loop) through an FMU: every sample's outputs
+    (names), the CPU of the timed part and the solver's counters."""
+    ok: bool
+    status: str
+    messages: list[str]
+    cpu: float
+    t: np.ndarray
+    y: np.ndarray                   # samples x names
+    names: list[str]
+    counters: dict = field(default_factory=dict)
+
+    @property
+    def message(self) -> str:
+        """The FMU's last message where the run stopped early, else empty."""
+        return "" if self.ok else "; ".join(self.messages[-1:])
+
+    def col(self, name):
+        return self.y[:, self.names.index(name)]
+
+    @property
+    def fn(self):
+        return self.y[:, [self.names.index(n) for n in FN]]
+
+    @property
+    def t_end(self):
+        return float(self.t[-1])
+
+
+def closed_loop(path, stop_time, settings: dict | None = None, extra=()) -> Loop:
+    """The paper's run through the FMU at path (docs/model.md; the main job's loop cedra.run.simulate.speed_loop: its
+    speed controller, equal torques, every 0.01 s), from fmi2Instantiate to stop_time or the first refused step,
+    reading only body.vx (for the controller), body.x, the six wheel[i].Fn and those of `extra` the FMU has, in one
+    fmi2GetReal per sample. The loop calls the FMU's fmi2 functions with buffers made once, as a compiled master
+    would (FMPy's checked wrappers build the arrays on every call: ~20 us per sample on this machine, a fifth of a
+    flat3d sample), so the CPU time is the FMU's and not the Python glue's. Timed with time.process_time from
+    fmi2Instantiate (the static settle included) to the last step; the FMU's unzip is not timed. Every report's
+    closed loop: the benchmark's (fmu_closed_loop), the defaults' and the figures'."""
     from cedra.run.driver import RoverFMU
-    from cedra.reports.mujoco_model import Result
     from cedra.run.simulate import speed_loop
     f = RoverFMU(path)
-    names = ["body.vx", "body.x"] + [f"wheel[{i}].Fn" for i in range(1, 7)] + list(record)
-    samples = []
+    names = ["body.vx", "body.x"] + FN + [n for n in extra if f.has(n)]
+    ts, ys = [], []
+
+    def record(k, t, y, tau):
+        ts.append(t)
+        ys.append(y)
+        return False
+
     cpu = time.process_time()
     f.start(settings or {})
-    ok = speed_loop(f, stop_time, names, lambda k, t, y, tau: samples.append((t, y)))
+    ok = speed_loop(f, stop_time, names, record)
     cpu = time.process_time() - cpu
-    t = np.array([s[0] for s in samples])
-    y = np.array([s[1] for s in samples])
-    msg = "" if ok else f"{f.status}: " + "; ".join(f.messages[-2:])
-    steps, rejected, evals = (int(v) for v in f.get(["solver.steps", "solver.rejected", "solver.rhs_evals"]))
-    jacs = int(f.get(["solver.jac_evals"])[0]) if f.has("solver.jac_evals") else -1
+    counters = {k: int(v) for k, v in zip(("steps", "rejected", "rhs_evals"),
+                                          f.get(["solver.steps", "solver.rejected", "solver.rhs_evals"]))}
+    counters["jac_evals"] = int(f.get(["solver.jac_evals"])[0]) if f.has("solver.jac_evals") else -1
+    status, messages = f.status, list(f.messages)
     f.close()
-    series = {n: y[:, 8 + k] for k, n in enumerate(record)}
-    return Result(label or f"FMU {Path(path).stem}", cpu, float(t[-1]), steps, t, y[:, 1], y[:, 2:8], ok, msg,
-                  extra=dict(rejected=rejected, rhs_evals=evals, jac_evals=jacs, series=series))
+    return Loop(ok, status, messages, cpu, np.array(ts), np.array(ys), names, counters)
+
+
+def fmu_closed_loop(path, stop_time, settings: dict | None = None, label="", record=()):
+    """closed_loop as the benchmark's Result (cedra.reports.mujoco_model.Result, the MuJoCo runs' record): label, CPU,
+    simulated time, steps, body.x and the six wheel[i].Fn over the samples. record: more outputs read in the same
+    call, returned as extra["series"][name] (arrays over the samples)."""
+    from cedra.reports.mujoco_model import Result
+    r = closed_loop(path, stop_time, settings, record)
+    msg = "" if r.ok else f"{r.status}: " + "; ".join(r.messages[-2:])
+    series = {n: r.col(n) for n in record}
+    c = r.counters
+    return Result(label or f"FMU {Path(path).stem}", r.cpu, r.t_end, c["steps"], r.t, r.col("body.x"), r.fn, r.ok,
+                  msg, extra=dict(rejected=c["rejected"], rhs_evals=c["rhs_evals"], jac_evals=c["jac_evals"],
+                                  series=series))

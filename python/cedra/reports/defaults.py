@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from cedra.models.scene import load_shipped, shipped
-from cedra.reports.common import SOLVER_CODES, announce, fmt, fmu_path, load_average, md_table, provenance
+from cedra.pages import load_average, md_table, provenance
+from cedra.reports.common import SOLVER_CODES, announce, fmt, fmu_path
 from cedra.run.progress import Progress
 
 TIGHT = {"solver.method": SOLVER_CODES["rodas4"], "solver.tol": 1e-9, "solver.max_wall_time": 1e3}

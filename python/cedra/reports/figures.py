@@ -3,7 +3,7 @@
     python -m cedra report figures [--figure NAME ...] [--build build] [--out out/report] [--quiet]
 
 Each figure prints its lines and a table; all of them together write <out>/figures.md with the command, the date,
-the code's version, the CPU and the load (`cedra.reports.common.provenance`). A figure that needs a variant of an
+the code's version, the CPU and the load (`cedra.pages.provenance`). A figure that needs a variant of an
 FMU (no switch location, other compiler flags) builds it from this tree's sources under <out>/figures/ with
 `cedra.fmu.packaging.build_fmu(..., extra_cflags)`; the rest run the FMUs in <build>.
 
@@ -33,69 +33,21 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from cedra.reports.common import SOLVER_CODES, fmu_path, load_average, md_table, provenance
+from cedra.pages import load_average, md_table, provenance
+from cedra.reports.common import FN, SOLVER_CODES, Loop, closed_loop, fmu_path
 
 REPEAT = 3
 WIDE_OPEN = {"solver.max_wall_time": 1e3}          # no run stops on the per-call wall-clock budget under load
-FN = [f"wheel[{i}].Fn" for i in range(1, 7)]
 
 
 # ------------------------------------------------------------------ helpers
-@dataclass
-class Loop:
-    """One run of the paper's closed loop (cedra.run.simulate.speed_loop) through an FMU."""
-    ok: bool
-    message: str
-    cpu: float
-    t: np.ndarray
-    y: np.ndarray                   # samples x names
-    names: list[str]
-    counters: dict = field(default_factory=dict)
-
-    def col(self, name):
-        return self.y[:, self.names.index(name)]
-
-    @property
-    def fn(self):
-        return self.y[:, [self.names.index(n) for n in FN]]
-
-    @property
-    def t_end(self):
-        return float(self.t[-1])
-
-
-def closed_loop(path, stop_time, settings=None, extra=()) -> Loop:
-    """The paper's run (the main job's speed controller, equal torques, every 0.01 s) through the FMU at path, from
-    fmi2Instantiate (timed with time.process_time, the settle included) to stop_time or the first refused step."""
-    from cedra.run.driver import RoverFMU
-    from cedra.run.simulate import speed_loop
-    f = RoverFMU(path)
-    names = ["body.vx", "body.x"] + FN + [n for n in extra if f.has(n)]
-    ts, ys = [], []
-
-    def record(k, t, y, tau):
-        ts.append(t)
-        ys.append(y)
-        return False
-
-    cpu = time.process_time()
-    f.start(dict(WIDE_OPEN) | dict(settings or {}))
-    ok = speed_loop(f, stop_time, names, record)
-    cpu = time.process_time() - cpu
-    counters = {k: int(v) for k, v in zip(("steps", "rejected", "rhs_evals"),
-                                          f.get(["solver.steps", "solver.rejected", "solver.rhs_evals"]))}
-    msg = "" if ok else "; ".join(f.messages[-1:])
-    f.close()
-    return Loop(ok, msg, cpu, np.array(ts), np.array(ys), names, counters)
-
-
 def least_cpu(path, stop_time, settings=None, n=REPEAT) -> tuple[Loop, list[float]]:
-    runs = [closed_loop(path, stop_time, settings) for _ in range(n)]
+    runs = [closed_loop(path, stop_time, WIDE_OPEN | dict(settings or {})) for _ in range(n)]
     return min(runs, key=lambda r: r.cpu), [r.cpu for r in runs]
 
 
@@ -242,7 +194,7 @@ def fig_location(ctx) -> str:
             ("step2d", 1e-10)]
     for scene, tol in plan:
         for located in (True, False):
-            r = closed_loop(fmus[(scene, located)], 15.0, {"solver.tol": tol})
+            r = closed_loop(fmus[(scene, located)], 15.0, WIDE_OPEN | {"solver.tol": tol})
             runs[(scene, tol, located)] = r
             c = r.counters
             ctx.log(f"location: {scene} tol {tol:g} {'located' if located else 'not located'}: {c['steps']} steps "
@@ -353,10 +305,10 @@ def fig_ros34pw2(ctx) -> str:
     """bump3d under the paper's closed loop, 15 s: body.x of ros34pw2 and rodas4 at tol 1e-6 against rodas4 at
     tol 1e-9."""
     path = fmu_path(ctx.build, "bump3d")
-    ref = closed_loop(path, 15.0, {"solver.method": SOLVER_CODES["rodas4"], "solver.tol": 1e-9})
+    ref = closed_loop(path, 15.0, WIDE_OPEN | {"solver.method": SOLVER_CODES["rodas4"], "solver.tol": 1e-9})
     rows = []
     for method in ("rodas4", "ros34pw2"):
-        r = closed_loop(path, 15.0, {"solver.method": SOLVER_CODES[method], "solver.tol": 1e-6})
+        r = closed_loop(path, 15.0, WIDE_OPEN | {"solver.method": SOLVER_CODES[method], "solver.tol": 1e-6})
         n = min(len(r.t), len(ref.t))
         dx = float(np.abs(r.col("body.x")[:n] - ref.col("body.x")[:n]).max())
         d = _force_diff(r, ref)
@@ -416,7 +368,7 @@ def fig_rigid(ctx) -> str:
     modes = [f"wheel[{i}].mode" for i in range(1, 7)]
     rows = []
     for h in (1e-4, 5e-5):
-        r = closed_loop(path, 15.0, {"solver.h_max": h}, extra=energy)
+        r = closed_loop(path, 15.0, WIDE_OPEN | {"solver.h_max": h}, extra=energy)
         E = r.col("energy.kinetic") + r.col("energy.potential") - r.col("energy.work")
         rise = float(np.max(np.diff(E)))
         rows.append([f"moreau h = {h:g}", end_of(r), f"{rise:.2g}", f"{r.cpu:.2f}"])
@@ -424,10 +376,11 @@ def fig_rigid(ctx) -> str:
     text = ("Moreau-Jean, 15 s: the largest rise of `energy.kinetic + energy.potential - energy.work` from one "
             "0.01 s sample to the next.\n\n" + md_table(["run", "end", "largest rise (J)", "CPU (s)"], rows))
     rows = []
-    comp = closed_loop(fmu_path(ctx.build, "bump2d"), 8.0)
+    comp = closed_loop(fmu_path(ctx.build, "bump2d"), 8.0, WIDE_OPEN)
     rows.append(["bump2d (compliant, rodas4)", f"{comp.cpu:.2f}", "", "", f"{comp.fn.max():.1f}", ""])
     for method in ("rodas4", "dopri5"):
-        r = closed_loop(path, 8.0, {"solver.method": SOLVER_CODES[method], "solver.h_max": 0.01}, extra=modes)
+        r = closed_loop(path, 8.0, WIDE_OPEN | {"solver.method": SOLVER_CODES[method], "solver.h_max": 0.01},
+                        extra=modes)
         m = r.y[:, [r.names.index(n) for n in modes]]
         changes = np.diff(m, axis=0) != 0
         n_sw = int(changes.sum())

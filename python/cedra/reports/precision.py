@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from cedra.models.scene import load_shipped
+from cedra.pages import load_average, md_table, provenance
 from cedra.run.progress import Progress
-from cedra.reports.common import (Problem, Run, Schedule, announce, errors, fmt, fmu_path, grid, load_average,
-                                  md_table, position_names, provenance,
+from cedra.reports.common import (Problem, Run, Schedule, announce, errors, fmt, fmu_path, grid, position_names,
                                   fn_names, python_run_outputs, reference_outputs, run_casadi, run_fmu, run_scipy,
                                   torques)
 

@@ -14,7 +14,7 @@
    equal torques), and the three of examples/sweeps/rovers/climb_controllers_{bump,step,stairs}.toml
    (examples/rovers_climb.py: both rovers with their drive controller FMUs in the three modes, on the plants with
    drives and chassis contact), run afresh
-   (cedra.run.sweep.execute, tables in out/rovers/) and drawn side by side (<out>/rovers_maps.png,
+   (cedra.sweep.execute, tables in out/rovers/) and drawn side by side (<out>/rovers_maps.png,
    <out>/rovers_controllers.png) with, per terrain and mu, the highest obstacle each rover gets over. The six
    equal-torque maps run again at solver.tol = 1e-8, and the report says whether every verdict is the same.
 3. **The field's quasi-static metrics** (cedra.reports.rovers_statics; with --quick on fewer heights): the friction
@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from cedra.reports.common import load_average, provenance
+from cedra.pages import load_average, provenance
 from cedra.run.cosim import DriveLoop
 from cedra.run.scenario import EXAMPLES, fmu
-from cedra.run.sweep import obstacle_end, variant_fmu
+from cedra.sweep import obstacle_end, variant_fmu
 
 ROVERS = {"CEDRA": ("bump2d", "drive2d", "cedra"), "rocker-bogie": ("rb_bump2d", "rb_drive2d", "rb")}
 CONTROLLERS = {"equal torques": 0, "inverse kinematics": 1, "traction control": 2}
@@ -50,7 +50,7 @@ CHECK_TOL = 1e-8                 # the equal-torque maps' verdicts are checked a
 def drive(scene, controller, mode, terrain_h, build_dir, stop_time=STOP_TIME, kind="bump", mu=None,
           speed=SPEED, options=None, steps=1) -> dict:
     """One run of the rover's plant (terrain `kind`, its height terrain_h, mu: the scene's unless given; options:
-    the scene's variant, cedra.run.sweep.variant_fmu; steps: the stairs' number of steps) with its controller in
+    the scene's variant, cedra.sweep.variant_fmu; steps: the stairs' number of steps) with its controller in
     ctrl.mode `mode`; the measures of the module's docstring."""
     values = {"terrain_h": terrain_h} | ({"mu": mu} if mu is not None else {})
     plant = variant_fmu(scene, options, build_dir) if options else fmu(scene, build_dir)
@@ -124,7 +124,7 @@ def measures_table(rows) -> list[str]:
 def map_sweeps():
     """The six sweeps of the equal-torque maps with drives, {(terrain, rover label): Sweep}, and the three of the
     controllers' maps, {("controllers", obstacle): Sweep}."""
-    from cedra.run.sweep import load
+    from cedra.sweep import load
     here = EXAMPLES / "sweeps" / "rovers"
     maps = {(terrain, rover): load(here / f"{terrain}_{short}.toml")
             for terrain in TERRAINS for rover, (_, _, short) in ROVERS.items()}
@@ -135,8 +135,8 @@ def map_sweeps():
 def run_maps(build_dir="build", workers=None, quiet=False, log=print) -> tuple[dict, dict]:
     """Every map's sweep run afresh, the equal-torque maps again at solver.tol = CHECK_TOL: ({key of map_sweeps:
     (Sweep, rows)}, {key: (runs compared, verdicts that differ)})."""
-    from cedra.run.sweep import execute, read_table, tightened
-    from cedra.run.sweep_report import tolerance_differences
+    from cedra.sweep import execute, read_table, tightened
+    from cedra.sweep.report import tolerance_differences
     out, checks = {}, {}
     for key, sw in map_sweeps().items():
         t0 = time.perf_counter()
@@ -236,7 +236,7 @@ def draw_maps(maps, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
-    from cedra.run.sweep_map import VERDICT_COLOURS
+    from cedra.sweep.maps import VERDICT_COLOURS
     layout = [(terrain, k) for terrain in TERRAINS for k in range(len(panels(*maps[(terrain, "CEDRA")])))]
     fig, axes = plt.subplots(len(layout), len(ROVERS), figsize=(10, 2.6 * len(layout)), squeeze=False)
     seen = set()
@@ -273,7 +273,7 @@ def draw_controllers(maps, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
-    from cedra.run.sweep_map import YES_NO_COLOURS
+    from cedra.sweep.maps import YES_NO_COLOURS
     keys = [("controllers", kind) for kind in OBSTACLES if ("controllers", kind) in maps]
     panels = [(rover, mode) for rover in ROVERS for mode in CONTROLLERS]
     fig, axes = plt.subplots(len(keys), len(panels), figsize=(2.7 * len(panels), 2.8 * len(keys)), squeeze=False,

@@ -18,9 +18,9 @@ import numpy as np
 
 from cedra.contract import CHECK_REASONS
 from cedra.models.scene import load_shipped
+from cedra.pages import load_average, md_table, provenance
 from cedra.run.progress import Progress
-from cedra.reports.common import (Problem, Schedule, announce, fmt, fmu_path, load_average, md_table, provenance,
-                                  run_fmu, torques)
+from cedra.reports.common import Problem, Schedule, announce, fmt, fmu_path, run_fmu, torques
 
 ENERGY_REL_TOL = 1e-5      # allowed energy increase, relative to |E(0)|, in zero-torque dissipative cases
 WALL_BUDGET = 60.0         # s of wall time per run; a run still going is stopped and reported as such

@@ -2,7 +2,7 @@
 
 This module only *describes* the rover: given its generalized coordinates as expressions (the full 17 of
 the 3D rover, each written in terms of a scene's own reduced coordinates), it returns bodies, wheels and the
-torques acting on coordinates. `CEDRA` is the rover kind the equations are formed from (cedra.mechanics.rover:
+torques acting on coordinates. `CEDRA` is the rover kind the equations are formed from (cedra.mechanics.rover_kind:
 the interface; cedra.models.plant forms the equations and chooses the reduced coordinates).
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ import casadi as ca
 from cedra.contract import Quantity
 from cedra.mechanics.contact import sigmoid, softplus
 from cedra.mechanics.kane import Body
-from cedra.mechanics.rover import CollisionPoint, RoverDescription, RoverKind, Stop, Wheel
+from cedra.mechanics.rover_kind import CollisionPoint, RoverDescription, RoverKind, Stop, Wheel
 from cedra.mechanics.transforms import apply, e_xz, homogeneous, rot_x, rot_y, rot_z, rotation, translation
 from cedra.rover import parameters
 

@@ -1,5 +1,5 @@
 """The rocker-bogie (docs/model.md, The rocker-bogie): the second rover, described through the
-same interface as CEDRA (cedra.mechanics.rover), so its equations, contact, drives and FMU come from the same
+same interface as CEDRA (cedra.mechanics.rover_kind), so its equations, contact, drives and FMU come from the same
 machinery.
 
 Body with two rockers pivoting about its y axis and joined by a differential (the right rocker's angle is minus
@@ -15,7 +15,7 @@ import casadi as ca
 
 from cedra.contract import Quantity as Q
 from cedra.mechanics.kane import Body
-from cedra.mechanics.rover import POSE, SPINS, CollisionPoint, RoverDescription, RoverKind, Stop, Wheel
+from cedra.mechanics.rover_kind import POSE, SPINS, CollisionPoint, RoverDescription, RoverKind, Stop, Wheel
 from cedra.mechanics.transforms import apply, homogeneous, rot_x, rot_y, rot_z
 from cedra.rover import parameters
 from cedra.rover.mechanism import stop_energy, stop_torque
@@ -60,7 +60,7 @@ def lift(a):
 
 
 def describe(qf, rate, p, tau, steer_cmd=None, stop_width=None) -> RoverDescription:
-    """The rocker-bogie at full coordinates qf (15 expressions of a scene's coordinates); see cedra.mechanics.rover.
+    """The rocker-bogie at full coordinates qf (15 expressions of a scene's coordinates); see cedra.mechanics.rover_kind.
     steer_cmd must be None: no wheel steers; stop_width: the joint stops' smoothing width (mechanism.stop_torque)."""
     if steer_cmd is not None:
         raise ValueError("the rocker-bogie has no steering joints")

@@ -26,9 +26,7 @@ from functools import lru_cache
 
 import casadi as ca
 
-from cedra.mechanics.statics import equal_ratio_tractions  # noqa: F401  (this module's, for CEDRA)
-from cedra.mechanics.statics import loads_given_tractions as generic_loads
-from cedra.mechanics.statics import with_body_work
+from cedra.mechanics.statics import equal_ratio_tractions, loads_given_tractions, with_body_work
 from cedra.mechanics.transforms import rot_x, rot_y, rot_z
 from cedra.rover.kinematics import contact_frame
 from cedra.rover.mechanism import FULL_Q, IDX, describe
@@ -120,13 +118,6 @@ def balance(dims: str, pitch, roll, theta, steer, psi, par):
     return _balance_function(dims)(pitch, roll, theta, steer, psi, par)
 
 
-def loads_given_tractions(dims: str, A, b):
-    """The loads as affine functions of the tractions T: (N0, B) with N = N0 + B T, and (a0, a_T) with the
-    acceleration a = a0 + a_T T. 3D: the lateral forces are the least-squares ones the balance allows
-    (cedra.mechanics.statics.loads_given_tractions)."""
-    return generic_loads(A, b, len(GROUPS[dims]), dims == "3d")
-
-
 @lru_cache(maxsize=None)
 def traction_function(dims: str, iterations: int) -> ca.Function:
     """Numeric front end (tests, reports): (pitch, roll, theta, steer, psi, par, demand) -> (T, s, N, N0, B) with
@@ -135,7 +126,7 @@ def traction_function(dims: str, iterations: int) -> ca.Function:
     demand = ca.SX.sym("demand")
     args = [s[k] for k in ("pitch", "roll", "theta", "steer", "psi", "par")]
     A, b = balance(dims, *args)
-    N0, B, _, _ = loads_given_tractions(dims, A, b)
+    N0, B, _, _ = loads_given_tractions(A, b, len(GROUPS[dims]), dims == "3d")
     weights = s["par"][STATICS_PARAMS.index("R_w")] * ca.DM(multiplicity(dims))
     T, ratio, N = equal_ratio_tractions(N0, B, weights, demand, iterations)
     return ca.Function(f"traction{dims}", args + [demand], [T, ratio, N, N0, B],

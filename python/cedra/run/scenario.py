@@ -27,7 +27,7 @@ class ScenarioError(ValueError):
 def fmu(name: str, build_dir="build") -> Path:
     """build/<name>.fmu for a shipped scene or controller, built there first if it is missing or stale (its build
     stamp does not match today's sources: cedra.fmu.packaging.ensure_fmu, which says so on stderr); a scene's
-    variant: cedra.run.sweep.variant_fmu."""
+    variant: cedra.sweep.variant_fmu."""
     from cedra.models.controller import CONTROLLERS
     from cedra.fmu.packaging import ensure_fmu
     from cedra.models.scene import shipped

@@ -12,7 +12,9 @@ import math
 import statistics
 from pathlib import Path
 
-from cedra.run.sweep_map import cell, index
+from cedra.pages import md_table
+from cedra.sweep.maps import cell, index
+
 
 SLOW_S = 10.0          # s of wall time: a run slower than this is listed
 
@@ -25,18 +27,12 @@ def _num(v, digits=4) -> str:
     return "nan" if f != f else f"{f:.{digits}g}"
 
 
-def _table(header, rows) -> str:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(str(c).replace("|", "/") for c in r) + " |" for r in rows]
-    return "\n".join(out)
-
-
 def _climbs(cat: str) -> bool:
     return cat in ("over", "yes")
 
 
 class Axes:
-    """The map's axes over a sweep's table: each row's place (panel, x, y) and category (sweep_map.cell)."""
+    """The map's axes over a sweep's table: each row's place (panel, x, y) and category (maps.cell)."""
 
     def __init__(self, sw, rows):
         spec = sw.map
@@ -118,8 +114,8 @@ def tolerance_differences(sw, rows, tight, tight_rows) -> tuple[int, list[tuple]
 def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float, check=None) -> Path:
     """Write <out>/<name>.md; check = (the solver parameter, its value, the tight sweep, its rows) after --check-tol
     or --check-h."""
-    from cedra.reports.common import provenance
-    from cedra.run.verdicts import VERDICTS
+    from cedra.pages import provenance
+    from cedra.sweep.verdicts import VERDICTS
     ax = Axes(sw, rows)
     spec = sw.map
     lines = [f"# {spec.get('title', sw.name)}", "", provenance(command, wall, load_at_start), ""]
@@ -135,14 +131,14 @@ def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float,
     lines += ["## Verdicts", ""]
     if spec["verdict"] == "verdict":
         order = list(VERDICTS)
-        lines.append(_table(["verdict", "runs", "meaning"],
+        lines.append(md_table(["verdict", "runs", "meaning"],
                             [(c, cats.count(c), VERDICTS[c]) for c in order if cats.count(c)]))
         late = sum(c in ("stuck", "hung up") and r["reason"].startswith("not over") for c, r in zip(cats, rows))
         if late:
             lines += ["", f"Of the stuck and hung-up runs, {late} ran to the stop time without getting over and "
                           f"without stopping (reason \"not over the obstacle at the stop time\")."]
     else:
-        lines.append(_table([spec["verdict"], "runs"],
+        lines.append(md_table([spec["verdict"], "runs"],
                             [(c, cats.count(c)) for c in ("yes", "no", "failed") if cats.count(c)]))
     lines.append("")
 
@@ -161,7 +157,7 @@ def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float,
                 r = ax.places.get((ip, ix, iy))
                 r_cells.append("" if r is None else ax.category(r))
             body.append([f"{yv:.4g}"] + r_cells)
-        lines += [_table(header, body), ""]
+        lines += [md_table(header, body), ""]
 
     # monotonicity in y
     bad = not_monotonic(ax)
@@ -182,7 +178,7 @@ def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float,
     failed = [r for r in rows if r["status"] != "ok"]
     lines += ["## Failed runs", ""]
     if failed:
-        lines.append(_table(sw.parameters + ["status", "t_end", "wall_s", "reason"],
+        lines.append(md_table(sw.parameters + ["status", "t_end", "wall_s", "reason"],
                             [[_num(r[p]) for p in sw.parameters] + [r["status"], _num(r.get("t_end", "")),
                                                                     _num(r["wall_s"], 3), r["reason"]]
                              for r in failed]))
@@ -201,7 +197,7 @@ def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float,
                      f"{sum(walls):.1f} s over {len(walls)} runs; {len(slow)} run(s) over {SLOW_S:g} s" +
                      (":" if slow else "."))
         if slow:
-            lines += ["", _table(sw.parameters + ["wall_s", "t_end", ax.spec["verdict"], "reason"],
+            lines += ["", md_table(sw.parameters + ["wall_s", "t_end", ax.spec["verdict"], "reason"],
                                  [[_num(r[p]) for p in sw.parameters] +
                                   [_num(r["wall_s"], 3), _num(r.get("t_end", "")), ax.category(r), r["reason"]]
                                   for r in slow])]
@@ -221,7 +217,7 @@ def write(sw, rows: list[dict], command: str, wall: float, load_at_start: float,
                   f"failed{walls_text}): {compared} runs compared, "
                   + ("every verdict the same." if not diffs else f"{len(diffs)} verdict(s) differ:"), ""]
         if diffs:
-            lines.append(_table(sw.parameters + ["verdict", f"at {at}", "final_x", f"at {at}", f"reason at {at}"],
+            lines.append(md_table(sw.parameters + ["verdict", f"at {at}", "final_x", f"at {at}", f"reason at {at}"],
                                 [[_num(p[k]) for k in sw.parameters] + [ax.category(a), ax.category(b),
                                                                           _num(a.get("final_x", "")),
                                                                           _num(b.get("final_x", "")), b["reason"]]

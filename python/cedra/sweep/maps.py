@@ -6,14 +6,14 @@ drawn from the sweep's table to <out>/<name>.png:
     y = "mu"
     panels = "terrain_w"         # optional: one panel per grid value
     verdict = "verdict"          # the output "verdict" (over, stuck, hung up, tipped, failed: VERDICTS of
-                                 # cedra.run.verdicts), or an output that is 1 (yes) or 0 (no), such as "climbed"
+                                 # cedra.sweep.verdicts), or an output that is 1 (yes) or 0 (no), such as "climbed"
     x_scale = 0.065              # optional: show x / x_scale (e.g. in wheel radii) ...
     x_label = "h / R_w"          # ... under this label (likewise panel_scale, panel_label)
     mark = {terrain_h = 0.14625, terrain_w = 0.14625, mu = 0.8, label = "the paper's run"}
 
 Each verdict has its own colour (VERDICT_COLOURS), and the legend counts the runs of each. Runs that failed (status
 other than ok) are drawn grey: a failure to simulate is not a failure to climb. The title's second line says what
-turns the wheels (drives and their envelope, or plain torque: cedra.run.sweep.Sweep.actuation).
+turns the wheels (drives and their envelope, or plain torque: cedra.sweep.Sweep.actuation).
 """
 from __future__ import annotations
 

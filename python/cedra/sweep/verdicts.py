@@ -1,6 +1,7 @@
 """What a sweep's scene run ended as (its verdict), the criteria that stop a run that will not climb, and what each
-verdict means (for the sweep's table, its map and its report: cedra.run.sweep, sweep_map, sweep_report)."""
+verdict means (for the sweep's table, its map and its report: cedra.sweep)."""
 from __future__ import annotations
+
 
 STUCK_TIME = 3.0       # s: a run whose body advanced less than STUCK_DX in this long is stopped: it will not climb
 STUCK_DX = 0.005
