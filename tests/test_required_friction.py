@@ -37,7 +37,7 @@ import pytest
 
 from cedra.contract import Quantity
 from cedra.mechanics.kane import Body
-from cedra.mechanics.rover import POSE, SPINS, RoverDescription, RoverKind, Wheel
+from cedra.mechanics.rover_kind import POSE, SPINS, RoverDescription, RoverKind, Wheel
 from cedra.mechanics.transforms import rot_y
 from cedra.rover.climb_pose import PoseError
 from cedra.rover.mechanism import CEDRA

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from cedra.mechanics.rover import SPINS, RoverKind
+from cedra.mechanics.rover_kind import SPINS, RoverKind
 from cedra.mechanics.statics import with_body_work
 
 CONTACT_GAP = 1e-7          # m: a wheel this close to a block of the profile touches it

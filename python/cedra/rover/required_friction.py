@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linprog
 
-from cedra.mechanics.rover import RoverKind
+from cedra.mechanics.rover_kind import RoverKind
 from cedra.rover.climb_pose import PlanarRover, Pose, PoseError
 from cedra.rover.profile import Staircase
 

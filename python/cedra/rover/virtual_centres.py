@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from cedra.mechanics.rover import POSE, SPINS, RoverKind
+from cedra.mechanics.rover_kind import POSE, SPINS, RoverKind
 
 
 @dataclass
