@@ -91,3 +91,17 @@ def run_coordinates(scene, model, seconds, every=50):
                 q[k] = row[col[OUTPUTS[nm]]]
         qs.append(q)
     return qs
+
+
+def central_differences(g, z, rel: float = 1e-6) -> np.ndarray:
+    """The Jacobian of g (a vector function of the vector z) by central differences, the step rel * max(1, |z_j|)
+    in each direction."""
+    z = np.asarray(z, dtype=float)
+    cols = []
+    for j in range(z.size):
+        h = rel * max(1.0, abs(z[j]))
+        up, down = z.copy(), z.copy()
+        up[j] += h
+        down[j] -= h
+        cols.append((np.asarray(g(up), dtype=float).ravel() - np.asarray(g(down), dtype=float).ravel()) / (2 * h))
+    return np.column_stack(cols)

@@ -12,6 +12,7 @@ import pytest
 
 from cedra import optimize
 from cedra.optimize import interval_jacobian
+from model_harness import central_differences
 
 REPO = Path(__file__).resolve().parents[1]
 BUILD = REPO / "build"
@@ -136,13 +137,7 @@ def test_the_carried_spin_rates_jacobian_is_the_chain_rules(free_dt, peak):
     shooting = CarriedSpinShooting(dyn, X[:, 0], n, dt, 1e-11, optimize.goal(problem, dyn), free_dt, peak)
     w = np.concatenate([dyn.reduced(X)[shooting.body].ravel(order="F"), U.T.ravel(order="F"), [dt], [0.3]])
     got = shooting.jacobian(w)
-    differenced = np.zeros_like(got)
-    for j in range(shooting.nw):
-        h = 1e-6 * max(1.0, abs(w[j]))
-        up, down = w.copy(), w.copy()
-        up[j] += h
-        down[j] -= h
-        differenced[:, j] = (shooting.g(up) - shooting.g(down)) / (2 * h)
+    differenced = central_differences(shooting.g, w)
     if not free_dt:
         differenced[:, -2] = 0.0                 # a constant of the problem: no column of the Jacobian
     assert np.max(np.abs(got - differenced)) < 1e-4 * np.max(np.abs(got))

@@ -16,6 +16,7 @@ from scipy.optimize import minimize_scalar
 from cedra import optimize
 from cedra.optimize import hybrid
 from cedra.optimize.modes import DEPTH, FORCE, HybridSystem
+from model_harness import central_differences
 
 REPO = Path(__file__).resolve().parents[1]
 MASS, K, G = 1.0, 1000.0, 9.81          # kg, N/m, m/s^2: the wheel's mass and the ground's stiffness
@@ -167,15 +168,7 @@ def test_the_phase_jacobian_is_the_finite_differences():
     p = np.array([1.0, 0.5, -0.5, 1.0, 0.05])
     J = np.array(jac(x, p))
     z = np.r_[x, p]
-    fd = np.zeros_like(J)
-    for c in range(z.size):
-        h = 1e-6 * max(1.0, abs(z[c]))
-        zp, zm = z.copy(), z.copy()
-        zp[c] += h
-        zm[c] -= h
-        fp = np.array(F(x0=zp[:system.nx], p=zp[system.nx:])["xf"]).ravel()
-        fm = np.array(F(x0=zm[:system.nx], p=zm[system.nx:])["xf"]).ravel()
-        fd[:, c] = (fp - fm) / (2 * h)
+    fd = central_differences(lambda zz: np.array(F(x0=zz[:system.nx], p=zz[system.nx:])["xf"]), z)
     scale = np.maximum(1.0, np.abs(fd).max(axis=0))
     assert np.abs(J - fd).max(axis=0) / scale == pytest.approx(np.zeros(z.size), abs=1e-4)
 

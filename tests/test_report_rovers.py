@@ -21,18 +21,22 @@ def report(tmp_path_factory):
     return out
 
 
-def rows_of(out: Path) -> dict:
-    """The measures table of rovers.md as {(rover, controller, terrain): row}."""
+def table_rows(out: Path, first: str) -> list[dict]:
+    """The rows of the table of rovers.md whose header line starts with first, each as {column: cell}."""
     lines = (out / "rovers.md").read_text().splitlines()
-    head = next(k for k, line in enumerate(lines) if line.startswith("| rover | controller"))
+    head = next(k for k, line in enumerate(lines) if line.startswith(first))
     names = [c.strip() for c in lines[head].strip("|").split("|")]
-    rows = {}
+    rows = []
     for line in lines[head + 2:]:
         if not line.startswith("|"):
             break
-        cells = dict(zip(names, (c.strip() for c in line.strip("|").split("|"))))
-        rows[(cells["rover"], cells["controller"], cells["terrain"])] = cells
+        rows.append(dict(zip(names, (c.strip() for c in line.strip("|").split("|")))))
     return rows
+
+
+def rows_of(out: Path) -> dict:
+    """The measures table of rovers.md as {(rover, controller, terrain): row}."""
+    return {(c["rover"], c["controller"], c["terrain"]): c for c in table_rows(out, "| rover | controller")}
 
 
 def test_both_rovers_over_the_paper_bump_with_every_controller(report):
@@ -75,17 +79,8 @@ def test_highest_over_per_friction():
 
 def statics_rows(out: Path, terrain: str) -> dict:
     """The quasi-static table of rovers.md for the step or the stairs as {(rover, h / R_w): row}."""
-    lines = (out / "rovers.md").read_text().splitlines()
-    first = "| rover | h / R_w |" if terrain == "step" else "| rover | rise / R_w |"
-    head = next(k for k, line in enumerate(lines) if line.startswith(first))
-    names = [c.strip() for c in lines[head].strip("|").split("|")]
-    rows = {}
-    for line in lines[head + 2:]:
-        if not line.startswith("|"):
-            break
-        cells = dict(zip(names, (c.strip() for c in line.strip("|").split("|"))))
-        rows[(cells["rover"], float(cells[names[1]]))] = cells
-    return rows
+    column = "h / R_w" if terrain == "step" else "rise / R_w"
+    return {(c["rover"], float(c[column])): c for c in table_rows(out, f"| rover | {column} |")}
 
 
 def test_the_quick_report_draws_the_required_friction_and_the_virtual_centres(report):
