@@ -65,10 +65,10 @@ LARGE_FUNCTION_FLAGS = ["-O1"]
 COLD_FUNCTIONS = ("cedra_settle.c", "cedra_guess.c", "cedra_out.c", "cedra_fcjac.c", "cedra_part_chassis_jac.c",
                   "cedra_part_point_jac.c")
 # Of the hot functions, the Jacobians (every *jac.c: cedra_rjac and the parts it calls), cedra_switch and cedra_fc
-# are at -O1 too: the dynamics' Jacobian part alone is 30 s of gcc at -O2 on a 3D scene with chassis points, 8 s at
-# -O1, while the runs' CPU with them at -O1 is 1.019 (stairs3d, 10 s), 1.003 (bump2d, 15 s) and 0.995 (bump3d,
-# 10 s) of the runs with them at -O2 (the least of 3 each, the speed loop of tools/profile; within the machine's
-# noise). cedra_f and the parts it calls stay at -O2: they are evaluated several times per step.
+# are at -O1 too: the dynamics' Jacobian part alone is 28.7 s of gcc at -O2 on rubble3d, 10.2 s at -O1 (user CPU,
+# gcc 12, an idle machine), while the runs' CPU with them at -O1 is 1.019 (stairs3d, 10 s), 1.003 (bump2d, 15 s)
+# and 0.995 (bump3d, 10 s) of the runs with them at -O2 (the least of 3 each, the speed loop of tools/profile;
+# within the machine's noise). cedra_f and the parts it calls stay at -O2: they are evaluated several times per step.
 LIGHT_HOT_FUNCTIONS = ("cedra_switch.c", "cedra_fc.c")
 
 
