@@ -84,7 +84,13 @@ def test_chassis_parts_equal_the_monolithic_form(scene):
     m = sc.model()
     spec = sc.spec(m)
     mono, parts = m.functions(parts=False), m.functions()
-    assert "cedra_part_chassis" in _calls(parts["cedra_fc"])
+    # each point's law and its group's part are one conditional call, taken only where the point touches; the
+    # points fixed in the body share one part
+    calls = [f"cedra_point_{g.name}" for g in m.chassis_groups for _ in g.points]
+    assert [c + "_touch" for c in calls] == [c for c in _calls(parts["cedra_fc"]) if c.endswith("_touch")]
+    assert [c + "_jac_touch" for c in calls] == [c for c in _calls(parts["cedra_fcjac"]) if c.endswith("_touch")
+                                                 and c.startswith("cedra_point_")]
+    assert sum(len(g.points) for g in m.chassis_groups if g.name == "body") >= 3
     par = np.array([p.start for p in spec.params])
     inp = np.array([p.start for p in spec.inputs])
     rng = np.random.default_rng(11)

@@ -59,11 +59,13 @@ LARGE_FUNCTION_FLAGS = ["-O1"]
 # - cedra_out: once per communication step (stairs3d: 100 a simulated second against ~5800 of cedra_f);
 #   21.7 s -> 6.1 s;
 # - cedra_fcjac: once per Jacobian, and only while a collision point touches; 22.6 s -> 11.5 s; likewise the parts
-#   only it calls (cedra.models.parts: the chassis' Jacobian and the point-contact part's).
+#   only it calls (cedra.models.parts: each point's generalized-force Jacobian and the point-contact part's).
+# - cedra_sample, a drive controller's step: once per communication step, beside the plant's thousands of
+#   evaluations; drive3d's 15.9 s at -O1 against 22.6 s at -O2 (a loaded machine).
 # The CPU of stairs3d's 10 s and bump2d's 15 s main-job runs with cedra_out and cedra_fcjac at -O1: 0.985 and
 # 0.987 of the runs at -O2 (the least of 3 each, the same machine; within its noise).
-COLD_FUNCTIONS = ("cedra_settle.c", "cedra_guess.c", "cedra_out.c", "cedra_fcjac.c", "cedra_part_chassis_jac.c",
-                  "cedra_part_point_jac.c")
+COLD_FUNCTIONS = ("cedra_settle.c", "cedra_guess.c", "cedra_out.c", "cedra_fcjac.c", "cedra_part_point_jac.c",
+                  "cedra_sample.c")
 # Of the hot functions, the Jacobians (every *jac.c: cedra_rjac and the parts it calls), cedra_switch and cedra_fc
 # are at -O1 too: the dynamics' Jacobian part alone is 28.7 s of gcc at -O2 on rubble3d, 10.2 s at -O1 (user CPU,
 # gcc 12, an idle machine), while the runs' CPU with them at -O1 is 1.019 (stairs3d, 10 s), 1.003 (bump2d, 15 s)

@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import casadi as ca
+import numpy as np
 
 from cedra.mechanics import rim
 from cedra.mechanics.contact import (compliant_force, compliant_law, contact_geometry, point_penetration,
@@ -39,17 +40,70 @@ POINT_STATE = 6       # a collision point's x = [position, velocity]
 SEARCH_INPUT = 7 + TERRAIN_TIN    # the contact search's x = [center, axle, radius, terrain inputs] (fmu_src/rim.c)
 
 
-def part_names(multi_contact: bool, chassis: bool) -> list[str]:
+def part_names(multi_contact: bool, chassis_groups: list[str] = ()) -> list[str]:
     """The fixed names of a model's parts, in the order the build writes their C files: the wheels' kinematics,
     the contact-free dynamics, the wheel-contact part (with its one-maximum forms where a wheel can touch at several
-    points), and with collision points the point-contact part and the chassis' generalized force."""
+    points), and with collision points the point-contact part and, per group of points (point_groups: the points
+    fixed in one body, or a point of its own), the group's generalized force cedra_part_chassis_<group> (and
+    _jac)."""
     names = ["cedra_part_kin", "cedra_part_dyn", "cedra_part_dyn_jac", "cedra_part_wheel", "cedra_part_wheel_jac"]
     if multi_contact:
         names += ["cedra_part_wheel_one", "cedra_part_wheel_one_jac", "cedra_part_wheel_flag"]
-    if chassis:
+    if chassis_groups:
         names += ["cedra_part_point", "cedra_part_point_jac", "cedra_part_point_none", "cedra_part_point_depth",
-                  "cedra_part_point_kin", "cedra_part_chassis", "cedra_part_chassis_jac"]
+                  "cedra_part_point_kin"]
+        for g in chassis_groups:
+            names += [f"cedra_part_chassis_{g}", f"cedra_part_chassis_{g}_jac"]
     return names
+
+
+@dataclass
+class PointGroup:
+    """Collision points that share one generalized-force part: the points fixed in one of the rover's bodies (body:
+    their local coordinates R' (p - o) in its frame, an expression of the parameters, local), or one point of its
+    own (body None: a point on a massless link, e.g. a bogie, whose frame the description does not give)."""
+    name: str
+    points: list[int]            # indices into the model's collision points (those of nonzero weight)
+    body: object | None = None
+    local: ca.SX | None = None   # 3 x len(points)
+
+
+def point_groups(model) -> list[PointGroup]:
+    """The model's collision points (those of nonzero planar weight, in order) grouped by the body they are fixed
+    in. A point is fixed in a body where R' (p - o) (o the body's position, R its inertia frame) is the same at every
+    pose and its velocity is do/dt + omega x (p - o): both checked at random poses and speeds, to 1e-12, against
+    r = R' (p - o) at q = 0; where no body holds it, it is a group of its own (its index, from 1)."""
+    m = model
+    planar = m.opt.dims == "2d"
+    points = [pt for pt in m.rover.collision_points if (pt.planar_weight if planar else 1) != 0]
+    n = m.q.numel()
+    par0 = m.default_par()
+    rng = np.random.default_rng(20261202)
+    poses = [(rng.uniform(-0.6, 0.6, n), rng.normal(0, 1, n)) for _ in range(3)]
+    groups: dict[str, PointGroup] = {}
+    singles = []
+    for j, pt in enumerate(points):
+        home = None
+        for body in m.rover.bodies:
+            if body.omega is None or body.inertia_frame is None or body.name.startswith("wheel"):
+                continue          # a wheel spins: its points are not the chassis'
+            local = body.inertia_frame.T @ (pt.position - body.position)
+            arm = body.inertia_frame @ ca.substitute(local, m.q, ca.SX.zeros(n))
+            # the body's frame moves with its omega where the point's velocity is do/dt + omega x R r
+            slip = ca.vertcat(local - ca.substitute(local, m.q, ca.SX.zeros(n)),
+                              m.rate(pt.position) - m.rate(body.position) - ca.cross(body.omega, arm))
+            at = ca.Function("fixed", [m.q, m.u, m.par], [slip])
+            if all(np.max(np.abs(np.array(at(qq, uu, par0)))) <= 1e-12 for qq, uu in poses):
+                home = body, ca.substitute(local, m.q, ca.SX.zeros(n))
+                break
+        if home is None:
+            singles.append(PointGroup(str(j + 1), [j]))
+            continue
+        body, local = home
+        g = groups.setdefault(body.name, PointGroup(body.name, [], body, ca.SX(3, 0)))
+        g.points.append(j)
+        g.local = ca.horzcat(g.local, local)
+    return list(groups.values()) + singles
 
 
 def _function(name, ins, outs, names_in=None, names_out=None) -> ca.Function:
@@ -116,7 +170,7 @@ class ModelParts:
         self.dyn_f = self._part("cedra_part_dyn", [q, u, inp, par, W], [fW, model.power], compact=True)
         self.dyn_jac = self._part("cedra_part_dyn_jac", [q, u, a, inp, par, W, ca.horzcat(*dW)], [
             dr_dq, dr_du, ca.jacobian(model.power, q), ca.jacobian(model.power, u)], compact=True)
-        expected = part_names(model.multi_contact, bool(model.chassis))
+        expected = part_names(model.multi_contact, [g.name for g in model.chassis_groups] if model.chassis else [])
         if sorted(self.part_functions) != sorted(expected):
             raise RuntimeError(f"the parts formed {sorted(self.part_functions)}, part_names says {sorted(expected)}")
 
@@ -272,9 +326,10 @@ class ModelParts:
     def _chassis_parts(self):
         """One point-contact part for every collision point: (x = [p, v], inputs, parameters) -> the compliant
         law's force on the point F = F_n n + F_t (and dF/dx), the terrain's normal under the point; the points'
-        kinematics with their depths, and the generalized force sum_j w_j J_j' F_j (J_j = dv_j/du, w_j the point's
-        planar weight) with its Jacobian by the chain rule inside it. Only the points that touch (depth > 0) call
-        the part: elsewhere the law is exactly zero, as it is in the monolithic form."""
+        kinematics with their depths; and per point j its generalized force w_j J_j' F_j (J_j = dv_j/du, w_j the
+        point's planar weight) with its Jacobian by the chain rule, cedra_part_chassis_<j> (and _jac). Only the
+        points that touch (depth > 0) call the law and their own generalized-force part: elsewhere both are exactly
+        zero, as they are in the monolithic form, and a point that does not touch costs its depth alone."""
         m, p, i_ = self.m, self.m.p, self.m.i
         q, u, inp, par = m.q, m.u, m.inp, m.par
         planar = m.opt.dims == "2d"
@@ -294,38 +349,72 @@ class ModelParts:
         self.point_depth = self._part("cedra_part_point_depth", [x, inp, par], res([depth], False))
         P = ca.vertcat(*[ca.vertcat(pt.position, m.rate(pt.position)) for pt in points])
         self.point_kin = self._part("cedra_part_point_kin", [q, u, par], [P], compact=True)
-        Fs = ca.SX.sym("F", 3 * self.n_points)
-        pattern = self.point_jac.sparsity_out(1)
-        dF = [ca.SX.sym(f"dF{j}", pattern) for j in range(self.n_points)]
-        Jp = [ca.jacobian(m.rate(pt.position), u) for pt in points]
-        Pq, Pu = ca.jacobian(P, q), ca.jacobian(P, u)
-        Qc = ca.SX.zeros(self.n, 1)
-        for j in range(self.n_points):
-            Qc += weights[j] * (Jp[j].T @ Fs[3 * j:3 * (j + 1)])
-        dQ_dq, dQ_du = ca.jacobian(Qc, q), ca.jacobian(Qc, u)
-        for j in range(self.n_points):
-            rows = slice(POINT_STATE * j, POINT_STATE * (j + 1))
-            dQ_dq += weights[j] * (Jp[j].T @ (dF[j] @ Pq[rows, :]))
-            dQ_du += weights[j] * (Jp[j].T @ (dF[j] @ Pu[rows, :]))
-        self.chassis_dyn = self._part("cedra_part_chassis", [q, u, par, Fs], [Qc], compact=True)
-        self.chassis_dyn_jac = self._part("cedra_part_chassis_jac", [q, u, par, Fs, ca.horzcat(*dF)], [dQ_dq, dQ_du],
-                                          compact=True)
+        # per group, its points' generalized force w J' F and d(w J' F)/dq at fixed F + w J' (dF/dx)(dx/dq): the
+        # velocity is J u, so dx/du = [0; J]. A body's part takes the point's local coordinates r as an input
+        # (p = o + R r, v = do/dt + omega x R r): one part serves every point fixed in the body.
+        self.groups = m.chassis_groups
+        Fj, wj = ca.SX.sym("F", 3), ca.SX.sym("w")
+        dFj = ca.SX.sym("dF", self.point_jac.sparsity_out(1))
+        for g in self.groups:
+            if g.body is not None:
+                r = ca.SX.sym("r", 3)
+                arm = g.body.inertia_frame @ r
+                xj = ca.vertcat(g.body.position + arm, m.rate(g.body.position) + ca.cross(g.body.omega, arm))
+                extra = [r]
+            else:
+                pt = points[g.points[0]]
+                xj = ca.vertcat(pt.position, m.rate(pt.position))
+                extra = []
+            Jj = ca.jacobian(xj[3:6], u)
+            Q = wj * (Jj.T @ Fj)
+            dQ_dq = ca.jacobian(Q, q) + wj * (Jj.T @ (dFj @ ca.jacobian(xj, q)))
+            dQ_du = wj * (Jj.T @ (dFj @ ca.jacobian(xj, u)))
+            self._part(f"cedra_part_chassis_{g.name}", [q, par] + extra + [wj, Fj], [Q], compact=True)
+            self._part(f"cedra_part_chassis_{g.name}_jac", [q, u, par] + extra + [wj, Fj, dFj], [dQ_dq, dQ_du],
+                       compact=True)
+        self.weights = weights
 
     def _points(self, q, u, inp, par, jac: bool, use):
-        """Each collision point's force (jac: and dF/dx), the part called only where the point touches."""
+        """The collision points' generalized force (jac: its Jacobian), each point's law and its group's part one
+        conditional call, taken only where the point touches."""
+        n = self.n
         P = use("cedra_part_point_kin")(q, u, par)
-        touch = ca.Function.if_else("cedra_part_point_touch", use("cedra_part_point_jac"), use("cedra_part_point_none"))
-        Fs, dFs = [], []
-        for j in range(self.n_points):
-            x = P[POINT_STATE * j:POINT_STATE * (j + 1)]
-            flag = use("cedra_part_point_depth")(x, inp, par) > 0
+        law = ca.Function.if_else("cedra_part_point_touch", use("cedra_part_point_jac"), use("cedra_part_point_none"))
+        Q, dQ_dq, dQ_du = ca.MX.zeros(n, 1), ca.MX.zeros(n, n), ca.MX.zeros(n, n)
+        qs, us, ps = ca.MX.sym("q", n), ca.MX.sym("u", n), ca.MX.sym("par", par.numel())
+        xs, inps = ca.MX.sym("x", POINT_STATE), ca.MX.sym("inp", inp.numel())
+        rs, ws = ca.MX.sym("r", 3), ca.MX.sym("w")
+        Fs, dFs = ca.MX.sym("F", 3), ca.MX.sym("dF", self.point_jac.sparsity_out(1))
+        for g in self.groups:
+            extra_s = [rs] if g.body is not None else []
             if jac:
-                F, dF = touch(flag, x, inp, par)
-                Fs.append(F)
-                dFs.append(dF)
+                name = f"cedra_part_chassis_{g.name}_jac"
+                part = self.part_functions[name]
+                force = ca.Function(f"cedra_point_{g.name}_jac", [qs, us, ps] + extra_s + [ws, Fs, dFs],
+                                    use(name)(qs, us, ps, *extra_s, ws, Fs, dFs))
+                none = ca.Function(f"cedra_point_{g.name}_jac_none", [qs, us, ps] + extra_s + [ws, Fs, dFs],
+                                   [ca.MX(part.sparsity_out(0), 0), ca.MX(part.sparsity_out(1), 0)])
             else:
-                Fs.append(ca.if_else(flag, use("cedra_part_point")(x, inp, par), ca.MX.zeros(3, 1), True))
-        return Fs, dFs
+                name = f"cedra_part_chassis_{g.name}"
+                force = ca.Function(f"cedra_point_{g.name}", [qs, ps] + extra_s + [ws, xs, inps],
+                                    [use(name)(qs, ps, *extra_s, ws, use("cedra_part_point")(xs, inps, ps))])
+                none = ca.Function(f"cedra_point_{g.name}_none", [qs, ps] + extra_s + [ws, xs, inps],
+                                   [ca.MX.zeros(n, 1)])
+            touch = ca.Function.if_else(force.name() + "_touch", force, none)
+            local = ca.Function(f"cedra_point_{g.name}_local", [self.m.par], [g.local])(par) \
+                if g.body is not None else None
+            for k, j in enumerate(g.points):
+                x = P[POINT_STATE * j:POINT_STATE * (j + 1)]
+                flag = use("cedra_part_point_depth")(x, inp, par) > 0
+                extra = [local[:, k]] if g.body is not None else []
+                if jac:
+                    F, dF = law(flag, x, inp, par)
+                    dq, du = touch(flag, q, u, par, *extra, self.weights[j], F, dF)
+                    dQ_dq += dq
+                    dQ_du += du
+                else:
+                    Q += touch(flag, q, par, *extra, self.weights[j], x, inp)
+        return Q, dQ_dq, dQ_du
 
     def chassis_functions(self, parts=None) -> dict[str, ca.Function]:
         """cedra_fc and cedra_fcjac under the contract's names and arguments (cedra.contract); parts as in
@@ -334,9 +423,7 @@ class ModelParts:
         n = self.n
         q, u = ca.MX.sym("q", n), ca.MX.sym("u", n)
         inp, par = ca.MX.sym("inp", self.m.inp.numel()), ca.MX.sym("par", self.m.par.numel())
-        Fs, _ = self._points(q, u, inp, par, False, use)
-        fc = ca.Function("cedra_fc", [q, u, inp, par], [use("cedra_part_chassis")(q, u, par, ca.vertcat(*Fs))])
-        Fs, dFs = self._points(q, u, inp, par, True, use)
-        dq, du = use("cedra_part_chassis_jac")(q, u, par, ca.vertcat(*Fs), ca.horzcat(*dFs))
+        fc = ca.Function("cedra_fc", [q, u, inp, par], [self._points(q, u, inp, par, False, use)[0]])
+        _, dq, du = self._points(q, u, inp, par, True, use)
         fcjac = ca.Function("cedra_fcjac", [q, u, inp, par], [dq, du])
         return {"cedra_fc": fc, "cedra_fcjac": fcjac}

@@ -662,12 +662,18 @@ class CedraModel:
                          chassis=bool(self.chassis) and not self.rigid,   # rigid: contacts of cedra_contact
                          **self._parts_spec(), **kw)
 
+    @cached_property
+    def chassis_groups(self):
+        """The collision points grouped by the body they are fixed in (cedra.models.parts.point_groups)."""
+        from cedra.models.parts import point_groups
+        return point_groups(self)
+
     def _parts_spec(self) -> dict:
         """ModelSpec's part_names, parts and compose where the parts serve (cedra.models.parts), formed on use."""
         if not self.has_parts:
             return {}
         from cedra.models.parts import part_names
-        return dict(part_names=part_names(self.multi_contact, bool(self.chassis)),
+        return dict(part_names=part_names(self.multi_contact, [g.name for g in self.chassis_groups] if self.chassis else []),
                     parts=LazyFunctions(lambda: self.parts.part_functions),
                     compose=lambda replacements: self.parts.functions(replacements))
 
