@@ -188,6 +188,9 @@ def ensure_vdmcheck() -> Path:
 
 _VDM_RULE = re.compile(r"^\w[\w-]*: .* at \S+:\d+\s*$")
 _VDM_WARNING = re.compile(r"^\w[\w-]*: Warning: ")
+# a file VDMCheck2 refuses to read: not well-formed XML, or (`Internal 0000: Cannot read file: ... XML validation`)
+# not valid against the FMI 2.0 schema
+_VDM_REFUSED = re.compile(r"^(XML errors found|Internal \d+: )")
 # VDMCheck2's two JVMs (its own, then VDMJ on the generated VDM-SL) run a few seconds of parsing and evaluation each:
 # the client compiler alone and the serial collector take about half the CPU time of the defaults for the same
 # output (VDMCheck2 starts the second JVM itself, so the flags go through JAVA_TOOL_OPTIONS, which both read).
@@ -214,17 +217,15 @@ def vdmcheck(fmu_path, timeout: float = 300.0) -> tuple[bool, list[str]]:
              if ln.strip() and not ln.startswith(("Picked up JAVA_TOOL_OPTIONS", "VDM source written to"))]
     if "No errors found." in lines and r.returncode == 0:
         return True, lines
-    if "Errors found." in lines or any(_VDM_RULE.match(ln) for ln in lines) or \
-            any(ln.startswith("XML errors found") for ln in lines):
+    if "Errors found." in lines or any(_VDM_RULE.match(ln) or _VDM_REFUSED.match(ln) for ln in lines):
         return False, lines
     raise CheckerFailed(f"VDMCheck2 gave no verdict (rc {r.returncode}):\n" + "\n".join(lines))
 
 
 def vdmcheck_errors(lines: list[str]) -> list[str]:
-    """The rule violations (`rule: message at file:line`) and XML errors out of vdmcheck()'s lines, warnings
-    left out."""
-    return [ln for ln in lines if (_VDM_RULE.match(ln) or ln.startswith("XML errors found"))
-            and not _VDM_WARNING.match(ln)]
+    """The rule violations (`rule: message at file:line`) and the refusals of the file (XML errors, schema
+    errors) out of vdmcheck()'s lines, warnings left out."""
+    return [ln for ln in lines if (_VDM_RULE.match(ln) or _VDM_REFUSED.match(ln)) and not _VDM_WARNING.match(ln)]
 
 
 def vdmcheck_warnings(lines: list[str]) -> list[str]:

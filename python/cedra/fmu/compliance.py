@@ -32,6 +32,7 @@ import importlib.util
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -158,12 +159,21 @@ def _libcosim(fmu: str) -> dict:
     return {"errors": errors, "note": note}
 
 
+_LOG_PREFIX = re.compile(r"^\[[^\]]*\] \[0x[0-9a-f]+\] \[(\w+)\]\s*")     # libcosim's [time] [thread] [level]
+
+
 def _libcosim_reasons(message: str) -> list[str]:
-    """The lines of a failed libcosim run that say why (its stderr, without the traceback's frames)."""
-    lines = [ln.strip() for ln in message.splitlines()[1:] if ln.strip()]
-    reasons = [ln for ln in lines if not ln.startswith(("Traceback", "File ", "^", "~")) and
-               not ln.startswith(("  ",))]
-    return reasons[-3:][::-1] or [_first_line(message)]
+    """Why a libcosim run failed, out of its stderr: libcosim's error log lines (its own words and the FMU's,
+    without the time stamp), then the rest that is not a traceback's frame."""
+    errors, rest = [], []
+    for ln in message.splitlines()[1:]:
+        m = _LOG_PREFIX.match(ln)
+        if m:
+            if m[1] in ("error", "fatal"):
+                errors.append(ln[m.end():].strip())
+        elif ln.strip() and not ln.startswith((" ", "Traceback")):
+            rest.append(ln.strip())
+    return errors + rest or [_first_line(message)]
 
 
 RUN = {"fmpy-validate": _fmpy_validate, "vdmcheck2": _vdmcheck2, "roundtrip": _roundtrip, "libcosim": _libcosim}
