@@ -19,9 +19,9 @@ Other FMI 2.0 checkers looked at on the package registries:
 - the FMI Standard's FMUComplianceChecker (fmuCheck): on no registry (GitHub release archives only), and
   discontinued;
 - FMPy's `fmpy validate` is fmpy-validate here; VDMCheck2 (org.into-cps.vdmcheck.fmi2 on Maven Central) is vdmcheck2;
-- fmu-manipulation-toolbox (PyPI): an XSD check (xmlschema) and a semantic check of names, value references,
-  causality/variability/initial/start and ModelStructure, pure Python; a subset of what fmpy-validate and
-  VDMCheck2 check, not added;
+- fmu-manipulation-toolbox (PyPI, maintained, pure Python): its checker is an XSD validation (xmlschema) and a
+  semantic check of names, value references, causality/variability/initial/start and ModelStructure, a subset
+  of what fmpy-validate and VDMCheck2 check: not added;
 - crates.io's rust-fmi (`fmi`, `fmi-schema`, `fmi-sim`): a reader and a simulator, no checker;
 - OMSimulator (PyPI) and PyFMI: importers, not checkers (PyFMI's PyPI release is from 2018).
 """
