@@ -1,7 +1,8 @@
 """`python -m cedra check FMU ...` (cedra.fmu.compliance): one verdict line per FMU and checker, then a summary; exit
 status 1 on any error or warning, 2 (before any check runs) when a path is not an FMU. The FMU is the shipped
 drive2d.fmu, and copies of it broken in one way each: every copy is reported by the checker that can see it, with
-that checker's own message, and by no other. docs/fmu.md's sample output is this command's (times aside)."""
+that checker's own message, and by no other (a VDMCheck2 warning alone fails the command too). docs/fmu.md's sample
+output is this command's (times aside)."""
 from __future__ import annotations
 
 import os
@@ -71,19 +72,34 @@ def _without_binary(fmu: Path, out: Path) -> Path:
     return out
 
 
-# (name, how it is broken, {checker: a fragment of its first message} for the checkers that must fail; every other
-# checker must pass)
+def _alias_variability(root):
+    # tau[2] made an alias of tau[1] (discrete) with another variability: VDMCheck2 warns, nothing else sees it
+    variables = root.find("ModelVariables")
+    tau1 = variables.find("ScalarVariable[@name='tau[1]']")
+    tau2 = variables.find("ScalarVariable[@name='tau[2]']")
+    tau2.set("valueReference", tau1.get("valueReference"))
+    tau2.set("variability", "continuous")
+
+
+# (name, how it is broken, {checker: (its verdict, a fragment of its first message)} for the checkers that must
+# report it; every other checker must pass)
 BROKEN = [
     # the binary refuses a GUID that is not its own; no checker of the XML can know
-    ("wrong_guid", _wrong_guid, {"roundtrip": "fmi2Instantiate failed", "libcosim": "does not match the FMU's GUID"}),
+    ("wrong_guid", _wrong_guid, {"roundtrip": ("FAIL", "fmi2Instantiate failed"),
+                                 "libcosim": ("FAIL", "does not match the FMU's GUID")}),
     # a modelIdentifier that names no library in binaries/
-    ("wrong_identifier", _wrong_identifier, {"roundtrip": "no_such_model", "libcosim": "no_such_model"}),
+    ("wrong_identifier", _wrong_identifier, {"roundtrip": ("FAIL", "no_such_model"),
+                                             "libcosim": ("FAIL", "no_such_model")}),
     # no binaries/ at all
-    ("no_binary", None, {"roundtrip": "Cannot find shared library", "libcosim": "[FMI Library: FMILIB]"}),
+    ("no_binary", None, {"roundtrip": ("FAIL", "Cannot find shared library"),
+                         "libcosim": ("FAIL", "[FMI Library: FMILIB]")}),
     # a schema error: an attribute the schema does not have
-    ("unknown_attribute", _unknown_attribute, {"fmpy-validate": "colour", "vdmcheck2": "colour"}),
+    ("unknown_attribute", _unknown_attribute, {"fmpy-validate": ("FAIL", "colour"), "vdmcheck2": ("FAIL", "colour")}),
     # ModelStructure/Outputs misses an output
-    ("output_dropped", _output_dropped, {"fmpy-validate": "Outputs", "vdmcheck2": "validOutputs"}),
+    ("output_dropped", _output_dropped, {"fmpy-validate": ("FAIL", "Outputs"),
+                                         "vdmcheck2": ("FAIL", "validOutputs")}),
+    # a warning alone fails the command too
+    ("alias_variability", _alias_variability, {"vdmcheck2": ("WARN", "Warning: aliases of reference")}),
 ]
 
 
@@ -101,15 +117,14 @@ def test_each_broken_fmu_fails_on_the_checker_that_sees_it(drive2d, tmp_path):
     for name, _, failing in BROKEN:
         for checker in CHECKERS:
             verdict, rest = got[(str(paths[name]), checker)]
-            if checker in failing:
-                assert verdict == "FAIL" and failing[checker] in rest, (name, checker, r.stdout)
-            else:
-                assert verdict == "ok", (name, checker, r.stdout)
+            want, fragment = failing.get(checker, ("ok", ""))
+            assert verdict == want and fragment in rest, (name, checker, r.stdout)
     summary = r.stdout.splitlines()[-1]
     n = 1 + len(BROKEN)
-    failed = sum(len(f) for _, _, f in BROKEN)
-    assert summary.startswith(f"{n} FMUs, {len(CHECKERS)} checkers: {n * len(CHECKERS) - failed} passed, "
-                              f"0 with warnings, {failed} with errors ("), summary
+    reported = [verdict for _, _, f in BROKEN for verdict, _ in f.values()]
+    assert summary.startswith(f"{n} FMUs, {len(CHECKERS)} checkers: {n * len(CHECKERS) - len(reported)} passed, "
+                              f"{reported.count('WARN')} with warnings, {reported.count('FAIL')} with errors ("), \
+        summary
 
 
 def test_a_shipped_fmu_passes_with_one_line_per_checker(drive2d):
@@ -129,6 +144,14 @@ def test_verbose_prints_every_problem(drive2d, tmp_path):
     detail = [ln.strip() for ln in r.stdout.splitlines() if ln.startswith("    ")]
     assert any(d.startswith("error: ") and "Outputs" in d for d in detail), r.stdout
     assert any(d.startswith("error: validOutputs") for d in detail), r.stdout
+
+
+def test_a_warning_alone_fails_the_command(drive2d, tmp_path):
+    warned = rewrite_md(drive2d, tmp_path / "alias_variability.fmu", _alias_variability)
+    r = _cedra("check", "--skip", "fmpy-validate", "--skip", "roundtrip", "--skip", "libcosim", str(warned))
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert _verdicts(r.stdout)[(str(warned), "vdmcheck2")][0] == "WARN", r.stdout
+    assert ": 0 passed, 1 with warnings, 0 with errors, 3 skipped (" in r.stdout.splitlines()[-1], r.stdout
 
 
 def test_a_checker_that_cannot_run_is_an_error_unless_skipped(drive2d, tmp_path):
