@@ -189,7 +189,9 @@ def unavailable(checker: str) -> str | None:
         try:
             checks.ensure_vdmcheck()
         except checks.CheckerUnavailable as e:
-            return _first_line(str(e))
+            lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+            cause = next((ln for ln in lines[1:] if "ERROR" in ln), None)      # Maven's first error, if any
+            return lines[0] + (f" {cause}" if cause else "") if lines else str(e)
     return None
 
 
