@@ -267,8 +267,9 @@ def libcosim_run(fmu_path, step: float, stop: float, inputs: dict | None = None,
     Returns {"time": t[0..N] (s), "time_ns": int ns, name: values[0..N]} with the sample at t=0 after
     initialization. Raises CheckerFailed with the subprocess's stderr if libcosim fails or aborts."""
     import numpy as np
+    import importlib
     try:
-        import libcosimpy  # noqa: F401  (only to fail early and clearly in this process)
+        importlib.import_module("libcosimpy")       # only to fail early and clearly in this process
     except ImportError as e:
         raise CheckerUnavailable(f"libcosimpy is not installed: {e}") from e
     md = read_md(fmu_path)
