@@ -247,7 +247,11 @@ def run(fmus: list[str], skip: tuple[str, ...] = (), jobs: int = 2, on_verdicts=
     missing = {c: why for c in active if (why := unavailable(c))}
     out: list[Verdict] = []
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        futures = {(f, c): pool.submit(run_one, c, f) for f in fmus for c in active if c not in missing}
+        # each FMU's longest checks first (VDMCheck2's two JVMs, then the two importers' runs), so that the short
+        # ones fill in behind them
+        order = sorted((c for c in active if c not in missing), key=("vdmcheck2", "libcosim").__contains__,
+                       reverse=True)
+        futures = {(f, c): pool.submit(run_one, c, f) for f in fmus for c in order}
         for f in fmus:
             verdicts = []
             for c in CHECKERS:
