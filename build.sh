@@ -5,7 +5,8 @@
 #                    object cache (~/.cache/cedra, or CEDRA_CACHE) when its C is unchanged
 # ./build.sh demo    set up .venv, build what the main job needs (bump2d), run it: the paper's bump run
 #                    (out/bump2d/: CSV, plots; prints timing)
-# ./build.sh test    build every shipped scene, then run the tests
+# ./build.sh test    build every shipped scene, check every FMU in build/ (python -m cedra check), then run the
+#                    tests; fails when either fails
 # Each build writes build/build-report.md (what was built, from the cache or compiled, and how long it took).
 # ./build.sh docs    set up .venv, then build the documentation site into build/docs/ (Sphinx, warnings are errors;
 #                    docs/conf.py generates the FMU reference from the variable table; no FMU is built)
@@ -27,7 +28,10 @@ case "${1:-}" in
     demo) $PY -m cedra build bump2d --out build
           $PY -m cedra simulate bump2d --build build --out out ;;
     test) shift; $PY -m cedra build --out build
-          $PY -m pytest -q -n 2 "$@" ;;
+          # every shipped FMU through every checker, one verdict line each (the tests do not run them again)
+          check=0; $PY -m cedra check build/*.fmu || check=$?
+          $PY -m pytest -q -n 2 "$@"
+          [ "$check" = 0 ] || { echo "cedra check failed (exit status $check): see its verdict lines above" >&2; exit 1; } ;;
     "") $PY -m cedra build --out build ;;
     *) echo "usage: $0 [demo|test|docs]" >&2; exit 2 ;;
 esac

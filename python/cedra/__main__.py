@@ -147,24 +147,8 @@ def cmd_optimize(args):
 
 
 def cmd_check(args):
-    from cedra.fmu import checks
-    bad = [why for why in map(checks.not_an_fmu, args.fmus) if why]
-    if bad:                         # every path is looked at before any check runs
-        for why in bad:
-            print(f"error: {why}", file=sys.stderr)
-        return 2
-    failed = False
-    for path in args.fmus:
-        results = checks.check_fmu(path)
-        print(f"{path}: " + ", ".join(f"{name} {'FAILED' if problems else 'ok'}"
-                                       for name, problems in results.items()), flush=True)
-        for name, problems in results.items():
-            if problems:
-                failed = True
-                more = f" (and {len(problems) - 1} more)" if len(problems) > 1 and not args.verbose else ""
-                for line in problems if args.verbose else problems[:1]:
-                    print(f"  {name}: {line}{more}")
-    return 1 if failed else 0
+    from cedra.fmu import compliance
+    return compliance.main(args)
 
 
 def cmd_fuzz(args):
@@ -232,10 +216,11 @@ def main(argv=None):
                    help="defaults --choose: write the choice into the shipped scene files' [solver] tables")
     r.add_argument("--figure", action="append", default=None,
                    help="figures: only this figure (repeatable; cedra.reports.figures lists them)")
-    ch = sub.add_parser("check", help="run the FMU checks (fmpy validate, VDMCheck2, the start value round trip "
-                        "through the binary) on FMUs; exit status 1 if any check fails")
-    ch.add_argument("fmus", nargs="+", metavar="FMU", help=".fmu files (any FMI 2.0 Co-Simulation FMU)")
-    ch.add_argument("-v", "--verbose", action="store_true", help="every problem of a failed check, not the first")
+    ch = sub.add_parser("check", help="the FMU compliance checkers (fmpy validate, VDMCheck2, the start value round "
+                        "trip through the binary, a short libcosim run against FMPy) on any FMI 2.0 Co-Simulation "
+                        "FMUs: one verdict line per FMU and checker; exit status 1 on any error or warning")
+    from cedra.fmu.compliance import add_arguments as add_check_arguments
+    add_check_arguments(ch)
     from cedra.fmu.fuzz import add_parser as add_fuzz_parser
     from cedra.optimize.command import add_parser as add_optimize_parser
     from cedra.sweep import add_parser as add_sweep_parser

@@ -7,8 +7,10 @@ runtime check that no checker does.
     fmpy_run(fmu, ...)            simulate with FMPy
     recompile_from_sources(fmu)   rebuild binaries/<platform> from sources/ with FMPy's CMake project
     start_value_roundtrip(fmu)    XML start values == what the binary returns for the same value reference
-    check_fmu(fmu)                the verdict checks (CHECKS: validate, vdmcheck, roundtrip) of one FMU, as
-                                  `python -m cedra check FMU ...` runs them
+    not_an_fmu(path)              why a path cannot be checked as an FMU, or None
+
+`python -m cedra check FMU ...` (cedra.fmu.compliance) runs fmpy validate, VDMCheck2, the round trip and a short
+libcosim run against FMPy on any FMUs.
 
 Every function raises CheckerUnavailable when its tool cannot be run at all (no java/mvn, Maven Central not
 reachable, no cmake, libcosimpy not installed): callers (the tests) must treat that as a failure, never a
@@ -185,46 +187,62 @@ def ensure_vdmcheck() -> Path:
 
 
 _VDM_RULE = re.compile(r"^\w[\w-]*: .* at \S+:\d+\s*$")
+_VDM_WARNING = re.compile(r"^\w[\w-]*: Warning: ")
+# a file VDMCheck2 refuses to read: not well-formed XML, or (`Internal 0000: Cannot read file: ... XML validation`)
+# not valid against the FMI 2.0 schema
+_VDM_REFUSED = re.compile(r"^(XML errors found|Internal \d+: )")
+# VDMCheck2's two JVMs (its own, then VDMJ on the generated VDM-SL) run a few seconds of parsing and evaluation each:
+# the client compiler alone and the serial collector take about half the CPU time of the defaults for the same
+# output (VDMCheck2 starts the second JVM itself, so the flags go through JAVA_TOOL_OPTIONS, which both read).
+_VDM_JAVA_OPTIONS = "-XX:TieredStopAtLevel=1 -XX:+UseSerialGC"
 
 
 def vdmcheck(fmu_path, timeout: float = 300.0) -> tuple[bool, list[str]]:
     """Run VDMCheck2 on an .fmu (or a modelDescription.xml). Returns (ok, lines): ok is True when VDMCheck2
     says "No errors found."; lines is its whole output (rule lines look like
     `validOutputs: Outputs section does not match output variables at modelDescription.xml:37`, followed by a
-    link to the standard). Raises CheckerUnavailable if it cannot be set up, CheckerFailed if it crashed."""
+    link to the standard; warnings, which leave ok True, like `rule: Warning: ...`). Raises CheckerUnavailable if
+    it cannot be set up, CheckerFailed if it crashed. Several runs may go at once: each writes the VDM-SL it
+    generates (by default a file `null` in VDMCheck2's folder) into a folder of its own (-v)."""
     fmu_path = Path(fmu_path).resolve()
     if not fmu_path.exists():
         raise FileNotFoundError(fmu_path)
-    root = _vdm_dir()
-    # VDMCheck2 writes scratch files into its folder (and cwd): one run at a time, setup under the same lock
-    with file_lock(tools_cache() / "vdmcheck.lock"):
-        dist = _setup_vdmcheck_locked(root)
-        with _timed("vdmcheck"):
-            r = _run_quiet(["java", "-jar", str(dist / "vdmcheck2.jar"), str(fmu_path)],
-                           "VDMCheck2", timeout=timeout, cwd=dist)
-    lines = [ln.rstrip() for ln in (r.stdout + "\n" + r.stderr).splitlines() if ln.strip()]
+    dist = ensure_vdmcheck()
+    env = dict(os.environ, JAVA_TOOL_OPTIONS=" ".join(filter(None, [os.environ.get("JAVA_TOOL_OPTIONS"),
+                                                                    _VDM_JAVA_OPTIONS])))
+    with tempfile.TemporaryDirectory(prefix="cedra-vdmcheck-") as scratch, _timed("vdmcheck"):
+        r = _run_quiet(["java", "-jar", str(dist / "vdmcheck2.jar"), "-v", str(Path(scratch) / "model.vdmsl"),
+                        str(fmu_path)], "VDMCheck2", timeout=timeout, cwd=dist, env=env)
+    lines = [ln.rstrip() for ln in (r.stdout + "\n" + r.stderr).splitlines()
+             if ln.strip() and not ln.startswith(("Picked up JAVA_TOOL_OPTIONS", "VDM source written to"))]
     if "No errors found." in lines and r.returncode == 0:
         return True, lines
-    if "Errors found." in lines or any(_VDM_RULE.match(ln) for ln in lines) or \
-            any(ln.startswith("XML errors found") for ln in lines):
+    if "Errors found." in lines or any(_VDM_RULE.match(ln) or _VDM_REFUSED.match(ln) for ln in lines):
         return False, lines
     raise CheckerFailed(f"VDMCheck2 gave no verdict (rc {r.returncode}):\n" + "\n".join(lines))
 
 
 def vdmcheck_errors(lines: list[str]) -> list[str]:
-    """The rule violations (`rule: message at file:line`) and XML errors out of vdmcheck()'s lines."""
-    return [ln for ln in lines if _VDM_RULE.match(ln) or ln.startswith("XML errors found")]
+    """The rule violations (`rule: message at file:line`) and the refusals of the file (XML errors, schema
+    errors) out of vdmcheck()'s lines, warnings left out."""
+    return [ln for ln in lines if (_VDM_RULE.match(ln) or _VDM_REFUSED.match(ln)) and not _VDM_WARNING.match(ln)]
+
+
+def vdmcheck_warnings(lines: list[str]) -> list[str]:
+    """VDMCheck2's warnings (`rule: Warning: message at file:line`) out of vdmcheck()'s lines."""
+    return [ln for ln in lines if _VDM_WARNING.match(ln)]
 
 
 # ---------------------------------------------------------------------------------------------- model description
 
-def _read_md(fmu_path):
+def read_md(fmu_path):
+    """The FMU's model description (FMPy's reader, not validated)."""
     from fmpy import read_model_description
     return read_model_description(str(fmu_path), validate=False)
 
 
 def _variables(fmu_path) -> dict:
-    return {v.name: v for v in _read_md(fmu_path).modelVariables}
+    return {v.name: v for v in read_md(fmu_path).modelVariables}
 
 
 def _default_outputs(md) -> list[str]:
@@ -249,11 +267,12 @@ def libcosim_run(fmu_path, step: float, stop: float, inputs: dict | None = None,
     Returns {"time": t[0..N] (s), "time_ns": int ns, name: values[0..N]} with the sample at t=0 after
     initialization. Raises CheckerFailed with the subprocess's stderr if libcosim fails or aborts."""
     import numpy as np
+    import importlib
     try:
-        import libcosimpy  # noqa: F401  (only to fail early and clearly in this process)
+        importlib.import_module("libcosimpy")       # only to fail early and clearly in this process
     except ImportError as e:
         raise CheckerUnavailable(f"libcosimpy is not installed: {e}") from e
-    md = _read_md(fmu_path)
+    md = read_md(fmu_path)
     byname = {v.name: v for v in md.modelVariables}
     outputs = list(outputs) if outputs is not None else _default_outputs(md)
     step_ns = round(step * 1e9)
@@ -363,7 +382,7 @@ def fmpy_run(fmu_path, step: float, stop: float, start_values: dict | None = Non
         if use_source:
             tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cedra-src-")))
             path = recompile_from_sources(fmu_path, tmp / Path(fmu_path).name)
-        md = _read_md(path)
+        md = read_md(path)
         outputs = list(outputs) if outputs is not None else _default_outputs(md)
         with _timed("fmpy_run"):
             res = simulate_fmu(str(path), fmi_type="CoSimulation", start_time=0.0, stop_time=stop,
@@ -389,7 +408,7 @@ def recompile_from_sources(fmu_path, out_path) -> Path:
         with zipfile.ZipFile(fmu_path) as z:
             z.extractall(unzip)
         shutil.rmtree(unzip / "binaries", ignore_errors=True)
-        md = _read_md(unzip)
+        md = read_md(unzip)
         if not md.buildConfigurations or not md.buildConfigurations[0].sourceFileSets:
             raise CheckerFailed(f"{fmu_path}: modelDescription lists no <SourceFiles>")
         create_cmake_settings(unzip, build)
@@ -435,7 +454,7 @@ def start_value_roundtrip(fmu_path, rtol: float = 1e-14, include_approx: bool = 
     from fmpy.fmi1 import calloc, free
     from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                            fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-    md = _read_md(fmu_path)
+    md = read_md(fmu_path)
     if md.coSimulation is None:
         raise CheckerFailed("not a Co-Simulation FMU")
     log: list[str] = []           # the FMU's log messages (unformatted), quoted when a call fails
@@ -495,7 +514,7 @@ def start_value_roundtrip(fmu_path, rtol: float = 1e-14, include_approx: bool = 
     return problems
 
 
-# ------------------------------------------------------------------------------------------- all checks of one FMU
+# ------------------------------------------------------------------------------------------------------ not an FMU
 
 def not_an_fmu(path) -> str | None:
     """Why `path` cannot be checked as an FMU (no such file, not a zip archive, no modelDescription.xml in it),
@@ -511,34 +530,6 @@ def not_an_fmu(path) -> str | None:
         if "modelDescription.xml" not in z.namelist():
             return f"{path}: not an FMU (no modelDescription.xml in the archive)"
     return None
-
-
-def _vdmcheck_problems(fmu_path) -> list[str]:
-    ok, lines = vdmcheck(fmu_path)
-    return [] if ok else (vdmcheck_errors(lines) or lines)
-
-
-# name -> the check: the FMU's problems, [] = passed
-CHECKS = {
-    "validate": fmpy_validate,
-    "vdmcheck": _vdmcheck_problems,
-    "roundtrip": start_value_roundtrip,
-}
-
-
-def check_fmu(fmu_path) -> dict[str, list[str]]:
-    """Every check of CHECKS on one FMU: name -> its problems ([] = passed). A checker that cannot run
-    (CheckerUnavailable) or that fails (CheckerFailed, or the importer raising, e.g. fmi2Instantiate refusing the
-    FMU) fails the check with that reason as its problem: it is never a pass."""
-    out = {}
-    for name, check in CHECKS.items():
-        try:
-            out[name] = list(check(fmu_path))
-        except CheckerUnavailable as e:
-            out[name] = [f"checker unavailable: {e}"]
-        except Exception as e:       # noqa: BLE001  (any crash of the checker or the FMU is that check's failure)
-            out[name] = [f"{type(e).__name__}: {e}"]
-    return out
 
 
 # ------------------------------------------------------------------------------------------------------ compare
