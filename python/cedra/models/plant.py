@@ -549,21 +549,22 @@ class CedraModel:
         n = q.numel()
         z = ca.SX.sym("z", 1)
         a = ca.SX.sym("a", n)
-        r = self.M @ a - self.f
         outs = self.outputs()
         y = ca.vertcat(*[e for _, e in outs[:]],
                        self.kinetic, self.potential, z[0])
         sidx = self.settle_idx
-        if self.rigid:
-            # On rigid ground the pose is fixed by geometry alone: every wheel touches (gap = 0). As many distinct
-            # wheels as settle unknowns (2D: wheels 3, 4 coincide with 1, 2); the glue's constrained solve then
-            # gives the contact forces.
-            wheels = [k for k in range(1, 7) if self.opt.dims == "3d" or k not in self.planar_twins]
-            res = ca.vertcat(*[-self.contacts[k - 1]["geo"].depth for k in wheels])
-        else:
-            res = ca.substitute(self.f + self.chassis_force, u, ca.DM.zeros(n))[sidx]
-        jac = None if "cedra_settle" in composed else ca.jacobian(res, q)[:, sidx]
-        fns = {} if jac is None else {"cedra_settle": self._contract("cedra_settle", [q, inp, par], [res, jac], True, one)}
+        fns = {}
+        if "cedra_settle" not in composed:      # the parts compose their own (ModelParts._settle)
+            if self.rigid:
+                # On rigid ground the pose is fixed by geometry alone: every wheel touches (gap = 0). As many
+                # distinct wheels as settle unknowns (2D: wheels 3, 4 coincide with 1, 2); the glue's constrained
+                # solve then gives the contact forces.
+                wheels = [k for k in range(1, 7) if self.opt.dims == "3d" or k not in self.planar_twins]
+                res = ca.vertcat(*[-self.contacts[k - 1]["geo"].depth for k in wheels])
+            else:
+                res = ca.substitute(self.f + self.chassis_force, u, ca.DM.zeros(n))[sidx]
+            fns["cedra_settle"] = self._contract("cedra_settle", [q, inp, par], [res, ca.jacobian(res, q)[:, sidx]],
+                                                 True, one)
         res_ = self.resolve      # the contact search's frozen symbols, a heightmap's contact points
         if self.rigid:
             vc = ca.vertcat(*[c["vc"] for c in self.rigid_contacts])
@@ -583,6 +584,7 @@ class CedraModel:
                 fns["cedra_fcjac"] = _function("cedra_fcjac", [q, u, inp, par],
                                                res_([ca.jacobian(Qc, q), ca.jacobian(Qc, u)]))
         if "cedra_f" not in composed:
+            r = self.M @ a - self.f
             fns["cedra_f"] = self._contract("cedra_f", [q, u, inp, par], [self.f, self.power], False, one)
             fns["cedra_rjac"] = self._contract("cedra_rjac", [q, u, a, inp, par],
                                                [ca.jacobian(r, q), ca.jacobian(r, u),
