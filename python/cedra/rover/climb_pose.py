@@ -219,7 +219,9 @@ class PlanarRover:
             # the constraints dependent
             lbg[k * nb:(k + 1) * nb] = -np.inf
         down = np.array([0.0 if k in released else self.hold[k] for k in range(ng)])
-        p = np.concatenate([self.par, _finite(blocks).T.ravel(), targets.T.ravel(), down])
+        # ca.vec is column-major: the 2 x n symbols take blocks (one row (x, z) per block) row by row, and
+        # targets (2 x groups) column by column
+        p = np.concatenate([self.par, _finite(blocks).ravel(), targets.T.ravel(), down])
         # from the guess, else from the design's joint angles lifted clear of the profile at the guess's x
         lifted = self.design_coords()
         lifted[ix] = guess[ix]
