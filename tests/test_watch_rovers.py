@@ -15,33 +15,46 @@ from fmu_harness import shipped_fmu
 CENTERS = [f"wheel[{i}].c{a}" for i in range(1, 7) for a in "xyz"]
 
 
-@pytest.fixture(scope="module")
-def rb_run(tmp_path_factory):
-    fmu = shipped_fmu("rb_bump2d", tmp_path_factory)
-    names, rows, _, info = simulate.run_bump(fmu, 6.0, extra=CENTERS)
+def _run(name, stop_time, tmp_path_factory):
+    fmu = shipped_fmu(name, tmp_path_factory)
+    names, rows, _, info = simulate.run_bump(fmu, stop_time, extra=CENTERS)
     assert info["ok"]
     return fmu, names, rows
 
 
-def test_the_rocker_bogies_drawing_has_the_fmus_wheel_centers(rb_run):
-    """Over the paper's bump (the rockers and bogies turning), the drawing's six wheel centers are the FMU's own
-    wheel[i].c* to 1e-9 m; each bogie's wheels stay 2 bogie_half apart, each rocker's front wheel a fixed distance
-    from its pivot."""
-    fmu, names, rows = rb_run
+@pytest.fixture(scope="module")
+def rb_run(tmp_path_factory):
+    return _run("rb_bump2d", 6.0, tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def rb_stairs3d(tmp_path_factory):
+    return _run("rb_stairs3d", 8.0, tmp_path_factory)
+
+
+@pytest.mark.parametrize("run", ["rb_run", "rb_stairs3d"])
+def test_the_rocker_bogies_drawing_has_the_fmus_wheel_centers(run, request):
+    """Over the paper's bump (2D: the bogies turning) and up the turned stairs (3D: the differential turning the
+    rockers against each other, the body rolling), the drawing's six wheel centers are the FMU's own wheel[i].c*
+    to 1e-9 m; each bogie's wheels stay 2 bogie_half apart, each rocker's front wheel a fixed distance from its
+    pivot."""
+    fmu, names, rows = request.getfixturevalue(run)
     cols = watch.columns(names, rows)
     assert "rocker.rho" in cols and "bogie.beta[1]" in cols and "fork.theta4" not in cols
     assert np.ptp(cols["bogie.beta[1]"]) > 0.05                   # the bogies turned
+    if run == "rb_stairs3d":
+        assert np.ptp(cols["rocker.rho"]) > 0.05 and np.ptp(cols["body.roll"]) > 0.05
     p = watch.fmu_numbers(fmu)
     sk = skeleton(cols, p)
     assert sk.rover == "the rocker-bogie" and sk.links == RB_LINKS
     fmu_c = np.stack([np.stack([cols[f"wheel[{i}].c{a}"] for a in "xyz"], axis=-1) for i in range(1, 7)], axis=1)
     err = np.abs(sk.centers() - fmu_c).max()
-    print(f"rocker-bogie: drawing's wheel centers vs the FMU's: {err:.2e} m")
+    print(f"{run}: drawing's wheel centers vs the FMU's: {err:.2e} m")
     assert err < 1e-9
-    gap = np.linalg.norm(sk.point("c2") - sk.point("c3"), axis=-1)
-    assert np.allclose(gap, 2 * np.hypot(p["bogie_half"], 0.0), atol=1e-12)
-    arm = np.linalg.norm(sk.point("c1") - sk.point("Q_L"), axis=-1)
-    assert np.ptp(arm) < 1e-12
+    for a, b in (("c2", "c3"), ("c5", "c6")):
+        assert np.allclose(np.linalg.norm(sk.point(a) - sk.point(b), axis=-1), 2 * p["bogie_half"], atol=1e-12)
+    for c, q in (("c1", "Q_L"), ("c4", "Q_R")):
+        assert np.ptp(np.linalg.norm(sk.point(c) - sk.point(q), axis=-1)) < 1e-12
     assert np.allclose(np.linalg.norm(sk.axles, axis=-1), 1) and np.abs(np.sum(sk.axles * sk.spokes, -1)).max() < 1e-12
 
 
