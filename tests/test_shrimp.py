@@ -87,3 +87,19 @@ def test_a_four_bar_that_closes_at_its_design_but_not_at_a_stop_is_found():
     assert -1.2 <= failure.angle < -0.9 and abs(failure.closure) >= 1 - 1e-6
     assert {"fork_b", "fork_stop_lo"} <= set(failure.parameters)
     assert "fork_k" not in failure.parameters
+
+
+def test_the_example_scene_and_step_map_name_the_variant():
+    """examples/scenes/shrimp_step2d.toml names the variant (CEDRA's model with its values as start values) and
+    examples/sweeps/rovers/step_shrimp.toml maps it over step_cedra's grid up to two wheel diameters."""
+    from pathlib import Path
+
+    from cedra.models.scene import load
+    from cedra.sweep.definition import load as load_sweep
+    repo = Path(__file__).resolve().parents[1]
+    scene = load(repo / "examples" / "scenes" / "shrimp_step2d.toml")
+    assert scene.options.rover == "cedra" and scene.variant is shrimp.SHRIMP
+    assert scene.parameters["bogie_half"] == VALUES["bogie_half"] and scene.inputs["terrain_h"] == 4 * shrimp.R_W
+    sweep = load_sweep(repo / "examples" / "sweeps" / "rovers" / "step_shrimp.toml")
+    assert sweep.target.scene.variant is shrimp.SHRIMP
+    assert max(r["terrain_h"] for r in sweep.runs()) == pytest.approx(4 * shrimp.R_W)
