@@ -118,3 +118,15 @@ def test_the_shrimp_variant_climbs_two_wheel_diameters_below_unit_friction(repor
         (cx, cz), (wx, wz) = (tuple(map(float, centres[rover][k].split(", ")))
                               for k in ("virtual centre x, z (m)", "wheel centre x, z (m)"))
         assert (cx < wx) == behind and cz < wz, centres[rover]
+
+
+def test_the_maps_table_lists_a_variants_map_after_the_rovers():
+    """A variant's map (VARIANT_MAPS) gets its own row after the rovers' on its terrain, its highest step per mu."""
+    rows = [dict(mu=str(mu), terrain_h=str(h), verdict="over" if h <= top else "stuck")
+            for mu, top in ((0.4, 0.0325), (0.8, 0.1625)) for h in (0.0, 0.0325, 0.1625, 0.26)]
+    sw = type("Sweep", (), {"grid": {"terrain_h": [0.0, 0.0325, 0.1625, 0.26], "mu": [0.4, 0.8]}})()
+    maps = {("step", "CEDRA"): (sw, rows), ("step", "CEDRA shrimp"): (sw, rows)}
+    lines = R.maps_table(maps)
+    assert [ln.split("|")[2].strip() for ln in lines[2:]] == ["CEDRA", "CEDRA shrimp"]
+    assert lines[-1].split("|")[3:5] == [" 0.5 R_w ", " 2.5 R_w "], lines[-1]
+    assert set(R.VARIANT_MAPS) <= set(R.map_sweeps())
