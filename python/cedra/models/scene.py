@@ -152,9 +152,9 @@ def _heightmap_file(path, data, terrain) -> str:
     return str(file)
 
 
-def read_variant(file, where=None) -> RoverVariant:
-    """A rover variant file (TOML): a shipped rover with other parameter values. Bad files fail with the variant
-    file, the key and the reason (where: the scene file and key that name it, for a file that cannot be read).
+def read_variant(file) -> RoverVariant:
+    """A rover variant file (TOML): a shipped rover with other parameter values. A bad file fails with the variant
+    file, the key and the reason.
 
         name = "my_cedra"               # letters, digits, underscore (default: the file's stem)
         description = "..."
