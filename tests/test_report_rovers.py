@@ -95,3 +95,38 @@ def test_the_quick_report_draws_the_required_friction_and_the_virtual_centres(re
         assert ratios[1] > ratios[0], (rover, ratios)
     text = (report / "rovers.md").read_text()
     assert "| CEDRA | theta4 | 6 |" in text        # the fork's virtual centre is in the table
+
+
+def test_the_shrimp_variant_climbs_two_wheel_diameters_below_unit_friction(report):
+    """The quick form's step curve goes to two wheel diameters (4 R_w) for the three rovers; the shrimp-faithful
+    CEDRA's is solved at every height and requires less than 1 at 4 R_w, and less than the default CEDRA wherever
+    the default's is solved; the stairs are solved for every rover; its fork's virtual centre is behind and below
+    the wheel axle, the default's ahead."""
+    rows = statics_rows(report, "step")
+    heights = (0.5, 1.0, 1.5, 2.0, 4.0)
+    shrimp = [float(rows[("CEDRA shrimp", h)]["required friction"]) for h in heights]
+    assert shrimp[-1] < 1.0, shrimp
+    for h, s in zip(heights, shrimp):
+        default = rows[("CEDRA", h)]["required friction"]
+        assert default == "not solved" or s < float(default), (h, s, default)
+    assert rows[("rocker-bogie", 4.0)]["required friction"] != "not solved"
+    for rover in ("CEDRA", "CEDRA shrimp", "rocker-bogie"):
+        stairs = statics_rows(report, "stairs")[(rover, 1.5)]
+        assert stairs["required friction"] != "not solved" and np.isfinite(float(stairs["required friction"]))
+    centres = {r["rover"]: r for r in table_rows(report, "| rover | joint |") if r["joint"] == "theta4"}
+    for rover, behind in (("CEDRA shrimp", True), ("CEDRA", False)):
+        (cx, cz), (wx, wz) = (tuple(map(float, centres[rover][k].split(", ")))
+                              for k in ("virtual centre x, z (m)", "wheel centre x, z (m)"))
+        assert (cx < wx) == behind and cz < wz, centres[rover]
+
+
+def test_the_maps_table_lists_a_variants_map_after_the_rovers():
+    """A variant's map (VARIANT_MAPS) gets its own row after the rovers' on its terrain, its highest step per mu."""
+    rows = [dict(mu=str(mu), terrain_h=str(h), verdict="over" if h <= top else "stuck")
+            for mu, top in ((0.4, 0.0325), (0.8, 0.1625)) for h in (0.0, 0.0325, 0.1625, 0.26)]
+    sw = type("Sweep", (), {"grid": {"terrain_h": [0.0, 0.0325, 0.1625, 0.26], "mu": [0.4, 0.8]}})()
+    maps = {("step", "CEDRA"): (sw, rows), ("step", "CEDRA shrimp"): (sw, rows)}
+    lines = R.maps_table(maps)
+    assert [ln.split("|")[2].strip() for ln in lines[2:]] == ["CEDRA", "CEDRA shrimp"]
+    assert lines[-1].split("|")[3:5] == [" 0.5 R_w ", " 2.5 R_w "], lines[-1]
+    assert set(R.VARIANT_MAPS) <= set(R.map_sweeps())

@@ -39,7 +39,7 @@ from cedra.contract import Quantity
 from cedra.mechanics.kane import Body
 from cedra.mechanics.rover_kind import POSE, SPINS, RoverDescription, RoverKind, Wheel
 from cedra.mechanics.transforms import rot_y
-from cedra.rover.climb_pose import PoseError
+from cedra.rover.climb_pose import PlanarRover, PoseError
 from cedra.rover.mechanism import CEDRA
 from cedra.rover.required_friction import Staircase, required_friction
 from cedra.rover.rocker_bogie import ROCKER_BOGIE
@@ -137,6 +137,42 @@ def test_two_wheeler_at_a_step_matches_the_hand_solution(a_f, a_r, h_over_R):
         assert lift[wheel].loads[wheel] == pytest.approx(n_c, rel=1e-8)
     # the lift-off is the climb's worst pose: the contact angle only flattens as the wheel rises
     assert climb.ratio == pytest.approx(max(r_front, r_rear), rel=1e-9)
+
+
+@pytest.mark.parametrize("h_over_R", [0.5, 1.4])
+def test_two_wheeler_up_stairs_meets_the_hand_solution_at_every_riser(h_over_R):
+    """Stairs whose treads are longer than the vehicle: at every riser each wheel lifts off with the other on a
+    tread, the step's geometry moved by the riser's offset, so every lift-off meets the hand solution to 1e-9. The
+    profile's blocks (one row (x, z) per block) reach the pose program as they are: a block taken from another
+    block's numbers puts a tread at another height, and no lift-off there matches."""
+    a_f, a_r, d, R, m = 0.15, 0.15, 0.05, 0.065, 10.0
+    h = h_over_R * R
+    stairs = Staircase(h, steps=3, run=0.5, x0=0.2)
+    climb = required_friction(two_wheeler(a_f, a_r, d, R, m), stairs, ds=R / 4)
+    r_front, _, r_rear, _ = hand_climb(a_f, a_r, d, R, m, h)
+    lifts = [p for p in climb.poses if p.s == 0.0]
+    assert sorted(p.phase for p in lifts) == [(w, k) for w in (1, 2) for k in (1, 2, 3)]
+    for p in lifts:
+        assert p.ratio == pytest.approx(r_front if p.phase[0] == 1 else r_rear, abs=1e-9, rel=1e-9), p.phase
+
+
+@pytest.mark.parametrize("kind", [CEDRA, ROCKER_BOGIE], ids=lambda k: k.name)
+def test_a_pose_across_two_risers_keeps_every_wheel_out_of_the_profile(kind):
+    """A pose with the rover across both risers of two stairs: every wheel centre at least R_w from every block
+    of the profile (the quadrants' distances taken here in numpy, not from the pose program), and the wheels
+    touching it within 1e-9 m of R_w: some on each tread and the ground."""
+    R = 0.065
+    stairs = Staircase(1.5 * R, steps=2, run=0.26, x0=-0.1)
+    blocks = stairs.blocks()
+    rover = PlanarRover(kind)
+    guess = rover.design_coords()
+    guess[rover.free.index("z")] += 0.3                   # from above the profile
+    v, _ = rover.pose(blocks, 0.0, guess, where="across two risers")
+    centres = np.array(rover.geometry(v, rover.par)[0]).reshape(2, -1).T
+    dist = np.array([[math.hypot(max(0.0, e - c[0]), max(0.0, c[1] - top)) for e, top in blocks] for c in centres])
+    assert dist.min() >= R - 1e-9, dist
+    touching = {int(np.argmin(row)) for row in dist if row.min() < R + 1e-9}
+    assert touching == {0, 1, 2}, dist
 
 
 def test_a_wrong_balance_would_fail():

@@ -180,3 +180,71 @@ def test_moreau_is_for_rigid_contact_only(tmp_path):
     rigid = write(tmp_path, BASE.replace('method = "rk4"', 'method = "moreau"').replace(
         'contact = "compliant"', 'contact = "rigid"').replace("steering = true", "steering = false"), "r.toml")
     assert sc.load(rigid).solver["method"] == "moreau"
+
+
+VARIANT = """\
+base = "cedra"
+description = "a variant for the tests"
+[parameters]
+bogie_half = 0.13
+"""
+
+
+def test_a_scene_names_a_shipped_variant_and_gets_its_values(tmp_path):
+    """`rover = "cedra_shrimp"`: CEDRA's model with the variant's values as start values (the scene's own
+    [parameters] over them) and the variant's design pose as the start."""
+    from cedra.models.rovers import VARIANTS
+    from cedra.rover.mechanism import design
+    text = 'rover = "cedra_shrimp"\n' + _replace("steering", "steering = false") + "[parameters]\nm_B = 21.0\n"
+    s = sc.load(write(tmp_path, text))
+    assert s.options.rover == "cedra" and s.variant is VARIANTS["cedra_shrimp"]
+    spec = s.spec()
+    spec.check()
+    par = {p.name: p.start for p in spec.params}
+    values = VARIANTS["cedra_shrimp"].values
+    assert values and all(par[k] == v for k, v in values.items() if k != "m_B")
+    assert par["m_B"] == 21.0
+    q0 = dict(zip(spec.q_names, spec.q_start))
+    assert q0["z"] == pytest.approx(design(par)["z"]) and q0["theta4"] == pytest.approx(par["fork_theta4_ref"])
+
+
+def test_a_scene_names_a_variant_file(tmp_path):
+    write(tmp_path, VARIANT, "long_bogies.toml")
+    s = sc.load(write(tmp_path, 'rover = "long_bogies.toml"\n' + BASE))
+    assert s.variant.name == "long_bogies" and s.parameters["bogie_half"] == 0.13
+    assert {p.name: p.start for p in s.spec().params}["bogie_half"] == 0.13
+
+
+BROKEN = [
+    # (id, variant file text, key, words of the reason): the four-bar cannot close at its design angle, or only
+    # beyond a stop the variant moves
+    ("short_upper_link", VARIANT + "fork_b = 0.01\n", "parameters.fork_b", "cannot be assembled at theta4"),
+    ("stop_past_toggle", VARIANT + "fork_stop_lo = -1.2\n", "parameters.fork_stop_lo", "within its stops"),
+    ("unknown_parameter", VARIANT + "no_such = 1.0\n", "parameters.no_such", "not a parameter of rover cedra"),
+    ("no_base", VARIANT.replace('base = "cedra"\n', ""), "base", "missing"),
+    ("fork_a_negative", VARIANT + "fork_a = -0.1\n", "parameters.fork_a", "must be >="),
+]
+
+
+@pytest.mark.parametrize("case", BROKEN, ids=[c[0] for c in BROKEN])
+def test_a_broken_variant_fails_before_code_generation(tmp_path, case):
+    """A scene naming a variant file whose four-bar cannot close over its joint range (or is otherwise bad) fails
+    when it is loaded, naming the variant file, its key and the reason."""
+    _, text, key, reason = case
+    variant = write(tmp_path, text, f"{case[0]}.toml")
+    scene = write(tmp_path, f'rover = "{variant.name}"\n' + BASE)
+    with pytest.raises(sc.SceneError) as e:
+        sc.load(scene)
+    msg = str(e.value)
+    assert msg.startswith(f"{variant}: key '{key}': "), msg
+    assert reason in msg, msg
+
+
+def test_a_scene_that_breaks_the_four_bar_itself_is_named(tmp_path):
+    """The scene's own [parameters] break the variant's four-bar: the scene file and its key are named."""
+    write(tmp_path, VARIANT, "long_bogies.toml")
+    p = write(tmp_path, 'rover = "long_bogies.toml"\n' + BASE + "[parameters]\nfork_b = 0.01\n")
+    with pytest.raises(sc.SceneError, match=f"^{p}: key 'parameters.fork_b': .*cannot be assembled"):
+        sc.load(p)
+    with pytest.raises(sc.SceneError, match="no rover variant file"):
+        sc.load(write(tmp_path, 'rover = "nowhere.toml"\n' + BASE))

@@ -3,7 +3,9 @@ before any code is generated.
 
     name = "bump2d"                 # FMU model identifier: letters, digits, underscore
     description = "..."
-    rover = "cedra"                 # which rover (cedra.models.rovers.ROVERS; default cedra)
+    rover = "cedra"                 # which rover (cedra.models.rovers.ROVERS; default cedra), a shipped variant
+                                    # of one (cedra.models.rovers.VARIANTS: "cedra_shrimp"), or a rover variant
+                                    # file (.toml, relative to the scene file; format: read_variant)
     dims = "2d"                     # "2d" (planar, 9 DOF) or "3d" (17 DOF, 15 without steering)
     terrain = "bump"                # flat | slope | bump | bump3d | step | stairs | waves | heightmap
     stairs_steps = 4                # terrain "stairs" only: its number of steps (1..50)
@@ -38,7 +40,9 @@ from pathlib import Path
 
 from cedra.mechanics import heightmap
 from cedra.models.plant import CedraModel, ModelOptions, input_table, param_table, projection
-from cedra.models.rovers import ROVERS
+from cedra.models.rovers import ROVERS, VARIANTS
+from cedra.rover.assembly import assembly_failure
+from cedra.rover.variants import RoverVariant
 from cedra.contract import MAX_STEPS_LIMIT, MAX_WALL_LIMIT, SOLVER_METHODS, ModelSpec
 from cedra.mechanics.terrain import KINDS, STAIRS_STEPS
 
@@ -69,6 +73,7 @@ class Scene:
     inputs: dict = field(default_factory=dict)
     start: dict = field(default_factory=dict)
     path: str = ""
+    variant: RoverVariant | None = None     # the rover variant the scene names (its values are in parameters)
 
     def model(self) -> CedraModel:
         return CedraModel(self.options)
@@ -79,6 +84,12 @@ class Scene:
                        solver=dict(self.solver))
         s.params = [replace(p, start=float(self.parameters.get(p.name, p.start))) for p in s.params]
         s.inputs = [replace(p, start=float(self.inputs.get(p.name, p.start))) for p in s.inputs]
+        if self.variant is not None:
+            # the design pose of the variant's geometry (the base's is the default start)
+            design = model.kind.design({p.name: p.start for p in s.params})
+            for name, value in design.items():
+                if name in s.q_names:
+                    s.q_start[s.q_names.index(name)] = float(value)
         for name, value in self.start.items():
             s.q_start[s.q_names.index(name)] = float(value)
         return s
@@ -141,6 +152,75 @@ def _heightmap_file(path, data, terrain) -> str:
     return str(file)
 
 
+def read_variant(file) -> RoverVariant:
+    """A rover variant file (TOML): a shipped rover with other parameter values. A bad file fails with the variant
+    file, the key and the reason.
+
+        name = "my_cedra"               # letters, digits, underscore (default: the file's stem)
+        description = "..."
+        base = "cedra"                  # the rover it varies (cedra.models.rovers.ROVERS)
+        [parameters]                    # its parameters' values (the base's defaults for the rest)
+        bogie_half = 0.15
+    """
+    data = read_toml(file, SceneError)
+    path = str(file)
+    for key in data:
+        if key not in ("name", "description", "base", "parameters"):
+            fail(path, key, "unknown key (known: base, description, name, parameters)")
+    if "base" not in data:
+        fail(path, "base", f"missing: the rover the variant varies ({', '.join(sorted(ROVERS))})")
+    base = choice(path, "base", data["base"], set(ROVERS))
+    name = data.get("name", Path(file).stem)
+    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        fail(path, "name", f"must be an identifier (letters, digits, underscore), got {name!r}")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        fail(path, "description", "must be a string")
+    known = {q.name: q for q in ROVERS[base].parameters}
+    values = {}
+    for key, value in _table(path, data, "parameters").items():
+        if key not in known:
+            fail(path, f"parameters.{key}", f"not a parameter of rover {base}")
+        q = known[key]
+        values[key] = number(path, f"parameters.{key}", value, q.min, q.max, lo_exclusive=q.min_exclusive)
+    return RoverVariant(name, base, values, description, source=path)
+
+
+def _rover(path, value) -> tuple[str, RoverVariant | None]:
+    """The scene's rover key: (the rover kind's name, the variant or None)."""
+    if not isinstance(value, str):
+        fail(path, "rover", f"expected a rover's name or a variant file, got {value!r}")
+    if value in ROVERS:
+        return value, None
+    if value in VARIANTS:
+        return VARIANTS[value].base, VARIANTS[value]
+    if value.endswith(".toml"):
+        base = Path(path).parent if path != "<scene>" else Path.cwd()
+        file = (base / value).resolve()
+        if not file.is_file():
+            fail(path, "rover", f"no rover variant file {str(file)!r}")
+        variant = read_variant(file)
+        return variant.base, variant
+    fail(path, "rover", f"must be one of {', '.join(sorted(ROVERS | VARIANTS))} or a rover variant file (.toml), "
+         f"got {value!r}")
+
+
+def _check_assembly(path, scene: Scene, own: dict) -> None:
+    """The rover's closed chains assemble over their joints' range with the scene's parameter values (the
+    variant's, then the scene's own, `own`); else the file that sets the failing geometry fails, naming its keys:
+    the scene's [parameters] where it sets any of them, else the variant's."""
+    failure = assembly_failure(ROVERS[scene.options.rover], scene.parameters)
+    if failure is None:
+        return
+    variant = scene.variant
+    keys = [k for k in failure.parameters if k in own]
+    if keys or variant is None:
+        fail(path, ", ".join(f"parameters.{k}" for k in keys) or "rover", failure.reason())
+    keys = [k for k in failure.parameters if k in variant.values]
+    where = variant.source or f"{path} (rover variant {variant.name!r})"
+    fail(where, ", ".join(f"parameters.{k}" for k in keys) or "base", failure.reason())
+
+
 def parse(data: dict, path: str = "<scene>") -> Scene:
     for key in data:
         if key not in TOP_KEYS:
@@ -151,7 +231,7 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
     name = data["name"]
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
         fail(path, "name", f"must be an identifier (letters, digits, underscore), got {name!r}")
-    rover = choice(path, "rover", data.get("rover", "cedra"), set(ROVERS))
+    rover, variant = _rover(path, data.get("rover", "cedra"))
     dims = choice(path, "dims", data["dims"], {"2d", "3d"})
     terrain = choice(path, "terrain", data["terrain"], set(KINDS))
     if dims == "2d" and terrain in ("bump3d", "waves", "heightmap"):
@@ -212,7 +292,7 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
         fail(path, "solver.method", "moreau is the rigid contact's own time stepping (contact = \"rigid\")")
     opt = ModelOptions(dims=dims, terrain=terrain, steering=steering, contact=contact, locked_wheels=locked,
                        heightmap=heightmap_file, drives=drives, stairs_steps=steps, chassis=chassis, rover=rover)
-    scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path))
+    scene = Scene(name, description, opt, stop_time, interval, solver, path=str(path), variant=variant)
     for section, table in (("parameters", param_table(opt)), ("inputs", input_table(opt))):
         known = {q.name: q for q in table}
         values = {}
@@ -226,6 +306,10 @@ def parse(data: dict, path: str = "<scene>") -> Scene:
             if terrain == "stairs" and key == "terrain_h" and values[key] < 0:
                 fail(path, f"{section}.{key}", f"the stairs' rise must be >= 0, got {values[key]}")
         setattr(scene, section, values)
+    own = dict(scene.parameters)
+    if variant is not None:
+        scene.parameters = {**variant.values, **own}
+    _check_assembly(path, scene, own)
     names, _ = projection(opt)
     for key, value in _table(path, data, "start").items():
         if key not in names:

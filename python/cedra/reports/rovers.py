@@ -9,13 +9,14 @@
    passes the bump's end, the peak wheel load, the wheel load spread (max / min of the six wheels' loads, on flat
    ground in the steady run; over the bump the largest load against the rover's weight share), the mean slip
    speed, the largest friction ratio of a loaded wheel and the motors' work per metre travelled.
-2. **The maps** (not with --quick): the six sweeps examples/sweeps/rovers/{bump,step,stairs}_{cedra,rb}.toml,
+2. **The maps** (not with --quick): the six sweeps examples/sweeps/rovers/{bump,step,stairs}_{cedra,rb}.toml
+   and the shrimp-faithful CEDRA's step (examples/sweeps/rovers/step_shrimp.toml, VARIANT_MAPS; in the table),
    a terrain's height (and the bump's width) against mu for one rover (drives, chassis contact, the main job's
    equal torques), and the three of examples/sweeps/rovers/climb_controllers_{bump,step,stairs}.toml
    (examples/rovers_climb.py: both rovers with their drive controller FMUs in the three modes, on the plants with
    drives and chassis contact), run afresh
    (cedra.sweep.execute, tables in out/rovers/) and drawn side by side (<out>/rovers_maps.png,
-   <out>/rovers_controllers.png) with, per terrain and mu, the highest obstacle each rover gets over. The six
+   <out>/rovers_controllers.png) with, per terrain and mu, the highest obstacle each rover gets over. The seven
    equal-torque maps run again at solver.tol = 1e-8, and the report says whether every verdict is the same.
 3. **The field's quasi-static metrics** (cedra.reports.rovers_statics; with --quick on fewer heights): the friction
    a sharp step and the stairs require over their height, the torque it needs, the virtual centres of rotation,
@@ -39,6 +40,8 @@ ROVERS = {"CEDRA": ("bump2d", "drive2d", "cedra"), "rocker-bogie": ("rb_bump2d",
 CONTROLLERS = {"equal torques": 0, "inverse kinematics": 1, "traction control": 2}
 TERRAINS = {"bump": "the paper's bump (widths 1 to 6 R_w)", "step": "a sharp step", "stairs": "4 stairs (run 4 R_w)"}
 OBSTACLES = ("bump", "step", "stairs")     # the controllers' maps (examples/rovers_climb.py)
+# the rover variants' equal-torque maps: {(terrain, rover label): sweep file of examples/sweeps/rovers/}
+VARIANT_MAPS = {("step", "CEDRA shrimp"): "step_shrimp.toml"}
 SPEED, STOP_TIME, STEP = 0.2, 15.0, 0.01
 BUMP_H = 0.14625                 # the paper's bump height (2.25 R_w)
 LOADED = 5.0                     # N: a wheel's friction ratio counts while it carries more than this
@@ -122,12 +125,13 @@ def measures_table(rows) -> list[str]:
 # ------------------------------------------------------------------------------------------------ the maps
 
 def map_sweeps():
-    """The six sweeps of the equal-torque maps with drives, {(terrain, rover label): Sweep}, and the three of the
-    controllers' maps, {("controllers", obstacle): Sweep}."""
+    """The seven sweeps of the equal-torque maps with drives (the rovers' and VARIANT_MAPS), {(terrain, rover
+    label): Sweep}, and the three of the controllers' maps, {("controllers", obstacle): Sweep}."""
     from cedra.sweep import load
     here = EXAMPLES / "sweeps" / "rovers"
     maps = {(terrain, rover): load(here / f"{terrain}_{short}.toml")
             for terrain in TERRAINS for rover, (_, _, short) in ROVERS.items()}
+    maps.update({key: load(here / name) for key, name in VARIANT_MAPS.items()})
     maps.update({("controllers", kind): load(here / f"climb_controllers_{kind}.toml") for kind in OBSTACLES})
     return maps
 
@@ -203,7 +207,7 @@ def maps_table(maps, checks=None) -> list[str]:
     lines = ["| terrain | rover | " + " | ".join(f"mu {mu:g}" for mu in mus) + " |" + tail,
              "|---|---|" + "---|" * len(mus) + ("---|" if checks else "")]
     for terrain in TERRAINS:
-        for rover in ROVERS:
+        for rover in list(ROVERS) + [k[1] for k in maps if k[0] == terrain and k[1] not in ROVERS]:
             key = (terrain, rover)
             if key not in maps:
                 continue
@@ -347,7 +351,7 @@ def main(args) -> int:
     rows = measures(build, log=log)
     maps = checks = None
     if not args.quick:
-        log("the climbing maps (nine sweeps; the six equal-torque maps again at a tight tolerance):")
+        log("the climbing maps (ten sweeps; the seven equal-torque maps again at a tight tolerance):")
         maps, checks = run_maps(build, quiet=args.quiet, log=log)
     log("the quasi-static climbs (both rovers, the step over its height, the stairs):")
     from cedra.reports.rovers_statics import section, table

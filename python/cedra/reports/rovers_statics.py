@@ -20,20 +20,22 @@ from cedra.rover.mechanism import CEDRA
 from cedra.rover.profile import Staircase
 from cedra.rover.required_friction import required_friction
 from cedra.rover.rocker_bogie import ROCKER_BOGIE
+from cedra.rover.shrimp import SHRIMP
 from cedra.rover.virtual_centres import virtual_centres
 
-KINDS = {"CEDRA": CEDRA, "rocker-bogie": ROCKER_BOGIE}
+# each rover: its kind and its parameter values (a variant's; {}: the kind's defaults)
+KINDS = {"CEDRA": (CEDRA, {}), "CEDRA shrimp": (CEDRA, SHRIMP.values), "rocker-bogie": (ROCKER_BOGIE, {})}
 R_W = 0.065
 STAIRS = dict(steps=4, run=0.26)                # the stairs map's (examples/sweeps/rovers/stairs_*.toml)
-STEP_H = {False: [0.25 * k for k in range(1, 17)], True: [0.5, 1.0, 1.5, 2.0]}     # h / R_w
+STEP_H = {False: [0.25 * k for k in range(1, 17)], True: [0.5, 1.0, 1.5, 2.0, 4.0]}     # h / R_w
 STAIRS_H = {False: [0.5, 1.0, 1.5, 2.0, 2.5], True: [1.5]}
 SPACING = {False: R_W / 8, True: R_W / 4}       # ds along each wheel's path
 TAU_MAX = 4.0                                   # N.m: the maps' torque limit
 
 
-def curve(kind, heights, quick, steps=1, run=math.inf) -> list[dict]:
+def curve(kind, heights, quick, steps=1, run=math.inf, params=None) -> list[dict]:
     """Per height (in R_w): the climb's required friction, the worst pose, the torque; or why no pose forms."""
-    rover = PlanarRover(kind)
+    rover = PlanarRover(kind, params)
     rows = []
     for f in heights:
         t0 = time.process_time()
@@ -50,9 +52,9 @@ def curve(kind, heights, quick, steps=1, run=math.inf) -> list[dict]:
 
 
 def compute(quick: bool) -> dict:
-    return {rover: {"step": curve(kind, STEP_H[quick], quick),
-                    "stairs": curve(kind, STAIRS_H[quick], quick, **STAIRS),
-                    "centres": virtual_centres(kind)} for rover, kind in KINDS.items()}
+    return {rover: {"step": curve(kind, STEP_H[quick], quick, params=params),
+                    "stairs": curve(kind, STAIRS_H[quick], quick, params=params, **STAIRS),
+                    "centres": virtual_centres(kind, params)} for rover, (kind, params) in KINDS.items()}
 
 
 def _fmt(r) -> str:
@@ -93,7 +95,7 @@ def draw_curves(results, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(7, 4))
-    for (rover, res), colour in zip(results.items(), ("C0", "C1")):
+    for (rover, res), colour in zip(results.items(), ("C0", "C2", "C1")):
         step = [r for r in res["step"] if not r["error"]]
         ax.plot([r["h"] for r in step], [min(r["ratio"], 3.0) for r in step], "o-", color=colour,
                 label=f"{rover}: step")
@@ -121,7 +123,7 @@ def draw_centres(results, path: Path) -> Path:
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, len(results), figsize=(6 * len(results), 3.6), squeeze=False)
     for ax, (rover, res) in zip(axes[0], results.items()):
-        model = PlanarRover(KINDS[rover])
+        model = PlanarRover(*KINDS[rover])
         centres, _, _, points = (np.array(e) for e in model.geometry(model.check_design(), model.par))
         for x, z in centres.T:
             ax.add_patch(plt.Circle((x, z), model.radius, fill=False, color="k"))

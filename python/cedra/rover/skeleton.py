@@ -13,15 +13,22 @@ turning: a wheel spinning faster than pi per output interval aliases, as a filme
 
 The body is drawn as a box (the model gives the body no shape): from the rear wheel's x to the upper four-bar pivot
 B, from the lower pivot A's height to 3 cm above B, 0.6 bogie_y to each side.
+
+Each rover has its drawing (`DRAWINGS`: its points, links, the outputs it reads and the parameters it needs); a
+run is drawn with the first whose outputs it recorded. The rocker-bogie's (cedra.rover.rocker_bogie's chains):
+its body box (the collision box's floor to its top face), the rocker pivots Q, the bogie pivots P, the wheels; the
+rockers drawn front wheel - Q - P, the bogies middle wheel - P - rear wheel.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import casadi as ca
 import numpy as np
 
 from cedra.mechanics.transforms import rot_x, rot_y, rot_z
+from cedra.rover import rocker_bogie
 from cedra.rover.mechanism import four_bar
 
 # the drawing points, in this order (rows of Skeleton.points)
@@ -43,17 +50,24 @@ NEEDED = (["body.x", "body.z", "body.pitch", "bogie.theta[1]", "fork.theta4"] +
 
 @dataclass
 class Skeleton:
-    points: np.ndarray      # (frames, len(POINTS), 3), world
+    points: np.ndarray      # (frames, len(names), 3), world
     axles: np.ndarray       # (frames, 6, 3) unit axle of wheel i (left-pointing for straight wheels)
     spokes: np.ndarray      # (frames, 6, 3) unit vector from the center to a rim mark turning with the wheel
     R: np.ndarray           # (frames, 3, 3) body rotation
     R_w: float
+    names: list = None      # the points' names (default: CEDRA's POINTS)
+    links: list = None      # polylines through named points (default: CEDRA's LINKS)
+    rover: str = "CEDRA"
+
+    def __post_init__(self):
+        self.names = POINTS if self.names is None else self.names
+        self.links = LINKS if self.links is None else self.links
 
     def point(self, name) -> np.ndarray:
-        return self.points[:, POINTS.index(name)]
+        return self.points[:, self.names.index(name)]
 
     def centers(self) -> np.ndarray:
-        return self.points[:, POINTS.index("c1"):POINTS.index("c6") + 1]
+        return np.stack([self.point(f"c{i}") for i in range(1, 7)], axis=1)
 
 
 def _function() -> ca.Function:
@@ -103,7 +117,84 @@ def _function() -> ca.Function:
                        [points, axles, spokes, R])
 
 
-_F = None
+# ---------------------------------------------------------------- the rocker-bogie's drawing
+RB_POINTS = [f"box{k}" for k in range(8)] + ["Q_L", "Q_R", "P_L", "P_R"] + [f"c{i}" for i in range(1, 7)]
+RB_LINKS = [["c1", "Q_L", "P_L"], ["c2", "P_L", "c3"], ["c4", "Q_R", "P_R"], ["c5", "P_R", "c6"]]
+RB_COORDS = ["body.x", "body.y", "body.z", "body.yaw", "body.pitch", "body.roll", "rocker.rho", "bogie.beta[1]",
+             "bogie.beta[2]"]
+RB_PARAMS = ["R_w", "rocker_x", "rocker_y", "rocker_z", "front_x", "front_z", "bogie_x", "bogie_z", "bogie_half",
+             "bogie_drop"]
+RB_NEEDED = ["body.x", "body.z", "body.pitch", "rocker.rho", "bogie.beta[1]"] + \
+    [f"wheel[{i}].omega" for i in range(1, 7)]
+
+
+def _rb_function() -> ca.Function:
+    q = {n: ca.SX.sym(n) for n in RB_COORDS}
+    gam = ca.SX.sym("gamma", 6)
+    p = {n: ca.SX.sym(n) for n in RB_PARAMS}
+    R = rot_z(q["body.yaw"]) @ rot_y(q["body.pitch"]) @ rot_x(q["body.roll"])
+    origin = ca.vertcat(q["body.x"], q["body.y"], q["body.z"])
+
+    def world(v):
+        return origin + R @ v
+
+    xs, ys = rocker_bogie.BODY_BOX_X, rocker_bogie.BODY_BOX_Y
+    zmin, zmax = rocker_bogie.BODY_FLOOR_Z, rocker_bogie.BODY_FACE_Z[-1]
+    box = [world(ca.vertcat(xs[-1] if k & 1 else xs[0], ys[-1] if k & 2 else ys[0], zmax if k & 4 else zmin))
+           for k in range(8)]
+    pts = {f"box{k}": b for k, b in enumerate(box)}
+    wheels, frames = {}, {}
+    lift = rocker_bogie.lift
+    for side, r, b, first, name in ((1, q["rocker.rho"], q["bogie.beta[1]"], 1, "L"),
+                                    (-1, -q["rocker.rho"], q["bogie.beta[2]"], 4, "R")):
+        Qp = ca.vertcat(p["rocker_x"], side * p["rocker_y"], p["rocker_z"])
+        front = ca.vertcat(p["front_x"], side * p["rocker_y"], p["front_z"])
+        pivot = ca.vertcat(p["bogie_x"], side * p["rocker_y"], p["bogie_z"])
+        P = Qp + lift(r) @ (pivot - Qp)
+        pts[f"Q_{name}"], pts[f"P_{name}"] = world(Qp), world(P)
+        wheels[first] = world(Qp + lift(r) @ (front - Qp))
+        wheels[first + 1] = world(P + lift(r + b) @ ca.vertcat(p["bogie_half"], 0, -p["bogie_drop"]))
+        wheels[first + 2] = world(P + lift(r + b) @ ca.vertcat(-p["bogie_half"], 0, -p["bogie_drop"]))
+        frames[first] = R @ lift(r)                         # a wheel spins relative to its carrier
+        frames[first + 1] = frames[first + 2] = R @ lift(r + b)
+    for i in range(1, 7):
+        pts[f"c{i}"] = wheels[i]
+    points = ca.horzcat(*[pts[n] for n in RB_POINTS])
+    axles = ca.horzcat(*[frames[i] @ ca.DM([0, 1, 0]) for i in range(1, 7)])
+    spokes = ca.horzcat(*[frames[i] @ rot_y(gam[i - 1]) @ ca.DM([1, 0, 0]) for i in range(1, 7)])
+    return ca.Function("rb_skeleton", [ca.vertcat(*q.values()), gam, ca.vertcat(*p.values())],
+                       [points, axles, spokes, R])
+
+
+@dataclass(frozen=True)
+class Drawing:
+    rover: str              # the rover's name, for messages
+    points: list
+    links: list
+    coords: list            # the recorded outputs the drawing takes as its coordinates (missing 3D ones are 0)
+    params: list
+    needed: list            # what a run must record for it (besides time)
+    twins: dict             # a missing output taken from another (2D: the right side as the left)
+    build: Callable
+
+
+DRAWINGS = [Drawing("CEDRA", POINTS, LINKS, COORDS, PARAMS, NEEDED, {"bogie.theta[2]": "bogie.theta[1]"}, _function),
+            Drawing("the rocker-bogie", RB_POINTS, RB_LINKS, RB_COORDS, RB_PARAMS, RB_NEEDED,
+                    {"bogie.beta[2]": "bogie.beta[1]"}, _rb_function)]
+_FUNCTIONS: dict = {}
+
+
+def drawing(cols) -> Drawing:
+    """The drawing of the first rover in DRAWINGS whose outputs the run recorded; else ValueError naming, for each,
+    what the run lacks."""
+    lacks = []
+    for d in DRAWINGS:
+        missing = [n for n in d.needed + ["time"] if n not in cols]
+        if not missing:
+            return d
+        lacks.append(f"{d.rover}: {missing}")
+    raise ValueError("the run did not record what a rover's drawing needs (" + "; ".join(lacks) +
+                     "; cedra.run.watch.WATCHED lists what the views need)")
 
 
 def spin_angles(t: np.ndarray, omega: np.ndarray) -> np.ndarray:
@@ -114,26 +205,27 @@ def spin_angles(t: np.ndarray, omega: np.ndarray) -> np.ndarray:
 
 def skeleton(cols: dict, p: dict, frames=None) -> Skeleton:
     """The drawing points of a run. cols: recorded outputs by name (arrays over the run's samples, with "time" and
-    NEEDED; missing 3D coordinates are 0, a missing bogie.theta[2] is bogie.theta[1] as in 2D); p: the run's
-    parameters (PARAMS at least); frames: the sample indices to draw (default all; the spin is integrated over
-    every sample regardless)."""
-    global _F
-    missing = [n for n in NEEDED + ["time"] if n not in cols]
-    if missing:
-        raise ValueError(f"the run did not record {missing} (cedra.run.watch.WATCHED lists what the views need)")
+    its rover's `needed` outputs (`drawing`); missing 3D coordinates are 0, a missing right bogie angle is the left
+    one's as in 2D); p: the run's parameters (the drawing's params at least); frames: the sample indices to draw
+    (default all; the spin is integrated over every sample regardless)."""
+    d = drawing(cols)
     n = len(cols["time"])
     idx = np.arange(n) if frames is None else np.asarray(frames)
-    default = {"bogie.theta[2]": cols["bogie.theta[1]"]}
-    Q = np.array([np.asarray(cols.get(c, default.get(c, np.zeros(n))), dtype=float)[idx] for c in COORDS])
+    default = {twin: cols[src] for twin, src in d.twins.items()}
+    Q = np.array([np.asarray(cols.get(c, default.get(c, np.zeros(n))), dtype=float)[idx] for c in d.coords])
     omega = np.array([cols[f"wheel[{i}].omega"] for i in range(1, 7)], dtype=float).T
     gam = spin_angles(np.asarray(cols["time"], dtype=float), omega)[idx].T
-    P = np.array([float(p[k]) for k in PARAMS])
-    if _F is None:
-        _F = _function()
+    missing = [k for k in d.params if k not in p]
+    if missing:
+        raise ValueError(f"the run's parameters lack {missing} ({d.rover}'s drawing needs them)")
+    P = np.array([float(p[k]) for k in d.params])
+    if d.rover not in _FUNCTIONS:
+        _FUNCTIONS[d.rover] = d.build()
     m = len(idx)
-    pts, ax, sp, R = _F.map(m)(Q, gam, np.tile(P[:, None], (1, m)))
-    pts = np.array(pts).reshape(3, m, len(POINTS)).transpose(1, 2, 0)
+    pts, ax, sp, R = _FUNCTIONS[d.rover].map(m)(Q, gam, np.tile(P[:, None], (1, m)))
+    npt = len(d.points)
+    pts = np.array(pts).reshape(3, m, npt).transpose(1, 2, 0)
     ax = np.array(ax).reshape(3, m, 6).transpose(1, 2, 0)
     sp = np.array(sp).reshape(3, m, 6).transpose(1, 2, 0)
     R = np.array(R).reshape(3, m, 3).transpose(1, 0, 2)
-    return Skeleton(pts, ax, sp, R, float(p["R_w"]))
+    return Skeleton(pts, ax, sp, R, float(p["R_w"]), list(d.points), list(d.links), d.rover)

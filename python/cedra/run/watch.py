@@ -4,10 +4,11 @@ run, from its recorded outputs.
     paths = watch(out_dir, names, rows, fmu_path)      # names: "time" + outputs, rows: one per sample
     python -m cedra watch out/turn_flat/turn_flat.csv --fmu build/flat3d.fmu      # from a run's CSV
 
-* `animation.gif` (or `animation.mp4` when ffmpeg is on PATH): the rover in the X-Z plane (body box, bogies,
-  four-bar and struts as lines, wheels as circles with a spoke turning at the wheel's spin angle, the ground force
-  on each wheel as an arrow, 1 cm per 10 N) over the terrain under Y = 0, the camera following the body, FPS
-  frames per simulated second, so the GIF plays in real time. For 2D runs (wheels 3, 4 are 1, 2).
+* `animation.gif` (or `animation.mp4` when ffmpeg is on PATH): the rover in the X-Z plane (body box, its links as
+  lines: CEDRA's bogies, four-bar and struts, the rocker-bogie's rockers and bogies; wheels as circles with a spoke
+  turning at the wheel's spin angle, the ground force on each wheel as an arrow, 1 cm per 10 N) over the terrain
+  under Y = 0, the camera following the body, FPS frames per simulated second, so the GIF plays in real time. For 2D runs (CEDRA's wheels 3, 4 are 1, 2; the
+  rocker-bogie's 4, 5, 6 are 1, 2, 3).
 * `view.html`: one self-contained page (no network: the renderer, `view.html` next to this module, is ~300 lines
   of canvas-2D projection and the data is inline JSON): the terrain surface sampled from the FMU's own terrain
   (kind and numbers from its model description, a heightmap from its resources, heights from
@@ -31,7 +32,7 @@ import casadi as ca
 import numpy as np
 
 from cedra.rover.parameters import DEFAULTS
-from cedra.rover.skeleton import BOX_FACES, LINKS, POINTS, skeleton
+from cedra.rover.skeleton import BOX_FACES, skeleton
 
 FPS = 10                    # animation frames per simulated second (GIF frame times are in 10 ms: 100 ms)
 VIEW_FPS = 15               # samples per simulated second embedded in view.html (the page interpolates)
@@ -39,7 +40,7 @@ FORCE_SCALE = 0.01 / 10.0   # m of arrow per N (1 cm per 10 N)
 WINDOW = (2.0, 0.75)        # m, the animation's view: width (following the body), height
 WHEELS = range(1, 7)
 WATCHED = (["body.x", "body.y", "body.z", "body.yaw", "body.pitch", "body.roll", "bogie.theta[1]", "bogie.theta[2]",
-            "fork.theta4", "steer.theta[1]", "steer.theta[2]"] +
+            "fork.theta4", "steer.theta[1]", "steer.theta[2]", "rocker.rho", "bogie.beta[1]", "bogie.beta[2]"] +
            [f"wheel[{i}].{q}" for q in ("omega", "Fn", "Fx", "Fy", "px", "py", "pz") for i in WHEELS])
 TEMPLATE = Path(__file__).with_name("view.html")
 
@@ -193,8 +194,10 @@ def animation(cols: dict, p: dict, terrain: TerrainMap, path, fps: float = FPS, 
     ax.set_axis_off()
     box = Polygon(np.zeros((4, 2)), closed=True, fc="#e8892b", ec="#5a3000", lw=1.2, zorder=3)
     ax.add_patch(box)
-    links = [ax.plot([], [], color="#333333", lw=2.2, solid_capstyle="round", zorder=4)[0] for _ in LINKS]
-    shown = [1, 2, 5, 6] if "body.y" not in cols else list(WHEELS)
+    links = [ax.plot([], [], color="#333333", lw=2.2, solid_capstyle="round", zorder=4)[0] for _ in sk.links]
+    # 2D: the wheels whose spins the planar run keeps (their twins on the right coincide with them)
+    planar_wheels = [1, 2, 3] if sk.rover == "the rocker-bogie" else [1, 2, 5, 6]
+    shown = planar_wheels if "body.y" not in cols else list(WHEELS)
     circles = {i: ax.add_patch(Circle((0, 0), R, fc="#4a4a4a", ec="#111111", lw=1, alpha=0.92, zorder=5))
                for i in shown}
     spokes = {i: ax.plot([], [], color="#ffd24a", lw=2, zorder=6)[0] for i in shown}
@@ -202,11 +205,11 @@ def animation(cols: dict, p: dict, terrain: TerrainMap, path, fps: float = FPS, 
                        angles="xy", scale_units="xy", scale=1 / FORCE_SCALE, color="#e0102a", width=0.005,
                        zorder=7)
     label = ax.text(0.01, 0.97, "", transform=ax.transAxes, va="top", fontsize=9, family="monospace")
-    legend = ax.text(0.99, 0.97, f"{title or 'CEDRA'}\narrows: ground force on a wheel, 1 cm per "
+    legend = ax.text(0.99, 0.97, f"{title or sk.rover}\narrows: ground force on a wheel, 1 cm per "
                      f"{0.01 / FORCE_SCALE:g} N", transform=ax.transAxes, va="top", ha="right", fontsize=8,
                      color="#7a0010", zorder=10, bbox=dict(fc="white", ec="#7a0010", lw=0.6, alpha=1.0))
-    k_box = [POINTS.index(f"box{k}") for k in BOX_FACES[2]]        # the y- face, seen from the side
-    k_links = [[POINTS.index(n) for n in line] for line in LINKS]
+    k_box = [sk.names.index(f"box{k}") for k in BOX_FACES[2]]      # the y- face, seen from the side
+    k_links = [[sk.names.index(n) for n in line] for line in sk.links]
     k_w = [i - 1 for i in shown]
     body_x = np.asarray(cols["body.x"], dtype=float)
     frames = []
@@ -216,7 +219,7 @@ def animation(cols: dict, p: dict, terrain: TerrainMap, path, fps: float = FPS, 
         for line, ks in zip(links, k_links):
             line.set_data(pts[ks, 0], pts[ks, 2])
         for i in shown:
-            c = pts[POINTS.index(f"c{i}")]
+            c = pts[sk.names.index(f"c{i}")]
             circles[i].set_center((c[0], c[2]))
             s = c + R * sk.spokes[f, i - 1]
             spokes[i].set_data([c[0], s[0]], [c[2], s[2]])
@@ -285,7 +288,7 @@ def view_data(cols: dict, p: dict, terrain: TerrainMap, fps: float = VIEW_FPS, t
         return np.round(np.asarray(a, dtype=float), d).tolist()
     return dict(
         title=title, planar=planar, R_w=sk.R_w, force_scale=FORCE_SCALE,
-        points=POINTS, links=LINKS, box_faces=BOX_FACES,
+        points=sk.names, links=sk.links, box_faces=BOX_FACES, rover=sk.rover,
         terrain=dict(x0=x0, x1=x1, y0=y0, y1=y1, nx=nx, ny=ny, z=r(Z.ravel())),
         t=r(t[idx], 3), p=r(pts), axle=r(sk.axles, 3), spoke=r(sk.spokes, 3), contact=r(P),
         force=r(F, 1), fn=r(np.array([np.asarray(cols.get(f"wheel[{i}].Fn", np.zeros(len(t))))[idx]
