@@ -41,7 +41,7 @@ from cedra.mechanics.rover_kind import POSE, SPINS, RoverDescription, RoverKind,
 from cedra.mechanics.transforms import rot_y
 from cedra.rover.climb_pose import PlanarRover, PoseError
 from cedra.rover.mechanism import CEDRA
-from cedra.rover.required_friction import Staircase, required_friction
+from cedra.rover.required_friction import Balance, Staircase, required_friction
 from cedra.rover.rocker_bogie import ROCKER_BOGIE
 
 EY = ca.DM([0, 1, 0])
@@ -201,3 +201,20 @@ def test_a_profile_the_rover_cannot_stand_on_is_refused():
         required_friction(ROCKER_BOGIE, Staircase(0.03, steps=3, run=0.05))
     with pytest.raises(ValueError, match="no parameters"):
         required_friction(ROCKER_BOGIE, Staircase(0.03), params={"no_such": 1.0})
+
+
+def test_a_wedge_is_flagged_not_quoted():
+    """A body squeezed between two walls (normals +x and -x, tractions vertical, weight W): the balance holds for
+    any squeeze N with T1 + T2 = W, so the ratio W / (2 N) falls without bound as N grows. The least ratio sits on
+    the programs' force bound, and the balance says so; a body on one floor contact does not."""
+    W = 10.0
+    cols_n = np.array([[1.0, -1.0], [0.0, 0.0]])
+    cols_t = np.array([[0.0, 0.0], [1.0, 1.0]])
+    wedge = Balance(cols_n, cols_t, np.zeros((2, 0)), np.array([0.0, W]), [0, 1], 0.065, False)
+    r, u = wedge.least_ratio()
+    assert wedge.at_bound(u)
+    assert r == pytest.approx(W / (2 * wedge.big), rel=1e-6)
+    floor = Balance(np.array([[0.0], [1.0]]), np.array([[1.0], [0.0]]), np.zeros((2, 0)), np.array([0.0, W]), [0],
+                    0.065, False)
+    r, u = floor.least_ratio()
+    assert r == pytest.approx(0.0, abs=1e-12) and not floor.at_bound(u)

@@ -46,7 +46,7 @@ def curve(kind, heights, quick, steps=1, run=math.inf, params=None) -> list[dict
             continue
         w = c.worst
         rows.append(dict(h=f, ratio=c.ratio, ratio_equal=c.ratio_equal, torque=c.torque, phase=w.phase, s=w.s,
-                         label=w.label, hanging=w.hanging, clearance=c.clearance, error="",
+                         label=w.label, hanging=w.hanging, clearance=c.clearance, error="", wedged=c.wedged,
                          cpu=time.process_time() - t0))
     return rows
 
@@ -75,7 +75,12 @@ def table(results, terrain) -> list[str]:
             pose = f"wheel {wheel} at riser {riser}, {1000 * row['s']:.0f} mm past its lift-off"
             if row["hanging"]:
                 pose += f" (wheel {', '.join(map(str, row['hanging']))} off the ground)"
-            lines.append(f"| {rover} | {row['h']:g} | {_fmt(row['ratio'])} | {pose} | {row['torque']:.2f} | "
+            ratio = _fmt(row["ratio"])
+            if row.get("wedged"):
+                # the ratio is a limit approached with unbounded internal forces (required_friction: wedged)
+                ratio += " (wedged)"
+                pose += ": wedged between the risers, its least ratio needs unbounded internal forces"
+            lines.append(f"| {rover} | {row['h']:g} | {ratio} | {pose} | {row['torque']:.2f} | "
                          f"{_fmt(row['ratio_equal'])} | {row['clearance']:.3f} |")
     return lines
 

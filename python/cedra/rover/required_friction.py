@@ -60,6 +60,9 @@ class PoseResult:
     s: float                    # m: how far its centre is along its path from the lift-off (0: the lift-off)
     stops: tuple                # the joints resting on a stop
     hanging: tuple = ()         # wheels released from the pose that hang (carry nothing)
+    wedged: bool = False        # the least ratio needs forces at the programs' bound (FORCE_BOUND): the rover
+                                # squeezes itself between the risers, the ratio is approached only as those internal
+                                # forces grow without bound, and the torque there is the bound's, not the climb's
 
 
 @dataclass
@@ -90,9 +93,16 @@ class Climb:
 
     @property
     def torque(self) -> float:
-        """The largest wheel torque over the poses at their optimal distributions."""
-        finite = [p.torque for p in self.poses if math.isfinite(p.ratio)]
+        """The largest wheel torque over the poses at their optimal distributions (wedged poses left out: their
+        torque is the force bound's; nan where every pose is wedged or has no balance)."""
+        finite = [p.torque for p in self.poses if math.isfinite(p.ratio) and not p.wedged]
         return max(finite) if finite else math.nan
+
+    @property
+    def wedged(self) -> bool:
+        """Whether the worst pose is wedged (PoseResult.wedged): its ratio is a limit the rover reaches only by
+        squeezing itself between the risers with unbounded internal forces."""
+        return self.worst.wedged
 
     @property
     def clearance(self) -> float:
@@ -131,7 +141,7 @@ class Balance:
             rows.append(self.torque_rows[1:] - self.torque_rows[0])
             b.append(np.zeros(len(touched) - 1))
         self.A, self.b = np.vstack(rows), np.concatenate(b)
-        big = FORCE_BOUND * max(1.0, float(np.max(np.abs(rhs), initial=0.0)))
+        self.big = big = FORCE_BOUND * max(1.0, float(np.max(np.abs(rhs), initial=0.0)))
         self.bounds = [(0, big)] * self.nc + [(-big, big)] * self.nc + [(0, big)] * self.ns
 
     def _solve(self, c, A_ub, b_ub, extra_bounds):
@@ -140,6 +150,10 @@ class Balance:
         res = linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=self.b, bounds=self.bounds + extra_bounds,
                       method="highs", options=HIGHS)
         return res if res.status == 0 else None
+
+    def at_bound(self, u) -> bool:
+        """Whether a balance u has a force at the programs' bound (a wedge: see PoseResult.wedged)."""
+        return u is not None and bool(np.max(np.abs(u), initial=0.0) >= 0.999 * self.big)
 
     def _split(self, u):
         nc = self.nc
@@ -220,13 +234,16 @@ def _evaluate(rover: PlanarRover, pose: Pose, profile: Staircase, phase) -> Pose
     out = {}
     for equal in (False, True):
         balance = Balance(cols_n, cols_t, cols_s, rhs, groups, rover.radius, equal)
-        r, _ = balance.least_ratio()
+        r, u_ratio = balance.least_ratio()
         if math.isfinite(r):
             torque, u = balance.least_torque(r)
         else:
             torque, u = math.nan, None
-        out[equal] = (r, torque, u, balance)
-    r, torque, u, balance = out[False]
+        out[equal] = (r, torque, u, balance, u_ratio)
+    r, torque, u, balance, u_ratio = out[False]
+    # the least ratio's balance with forces at the bound: the ratio falls further as the bound grows (a wedge's
+    # internal forces); flagged rather than quoted as if the bound were the rover's
+    wedged = math.isfinite(r) and balance.at_bound(u_ratio)
     loads, ratios = {}, {}
     if u is not None:
         N, T, _ = balance._split(u)
@@ -237,7 +254,7 @@ def _evaluate(rover: PlanarRover, pose: Pose, profile: Staircase, phase) -> Pose
     touching = {c.group for c in pose.contacts}
     hanging = tuple(g for k, g in enumerate(rover.groups) if k not in touching)
     return PoseResult(pose.x, _label(pose, profile), r, torque, out[True][0], out[True][1], loads, ratios,
-                      pose.clearance, phase[:2], phase[2], stops, hanging)
+                      pose.clearance, phase[:2], phase[2], stops, hanging, wedged)
 
 
 def _settle(rover: PlanarRover, profile: Staircase, blocks, guess, phase, where) -> tuple[Pose, PoseResult]:
