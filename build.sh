@@ -6,7 +6,7 @@
 # ./build.sh demo    set up .venv, build what the main job needs (bump2d), run it: the paper's bump run
 #                    (out/bump2d/: CSV, plots; prints timing)
 # ./build.sh test    build every shipped scene, check every FMU in build/ (python -m cedra check), then run the
-#                    tests; fails when either fails
+#                    tests (the 15 slowest named at the end); fails when either fails
 # Each build writes build/build-report.md (what was built, from the cache or compiled, and how long it took).
 # ./build.sh docs    set up .venv, then build the documentation site into build/docs/ (Sphinx, warnings are errors;
 #                    docs/conf.py generates the FMU reference from the variable table; no FMU is built)
@@ -30,7 +30,7 @@ case "${1:-}" in
     test) shift; $PY -m cedra build --out build
           # every shipped FMU through every checker, one verdict line each (the tests do not run them again)
           check=0; $PY -m cedra check build/*.fmu || check=$?
-          $PY -m pytest -q -n 2 "$@"
+          $PY -m pytest -q -n 2 --durations=15 "$@"
           [ "$check" = 0 ] || { echo "cedra check failed (exit status $check): see its verdict lines above" >&2; exit 1; } ;;
     "") $PY -m cedra build --out build ;;
     *) echo "usage: $0 [demo|test|docs]" >&2; exit 2 ;;
