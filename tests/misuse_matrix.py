@@ -10,7 +10,8 @@ the glue's contract say:
   the same results as an instance that never saw the call (two more steps, every output compared exactly);
   for a discarded step: fmi2Terminated is true and the outputs are those before the step, never NaN.
 
-    python tests/misuse_matrix.py build/*.fmu      # prints the table of docs/reliability.md: cases per class and result
+    python tests/misuse_matrix.py build/*.fmu      # the table: cases per class and result
+    python tests/misuse_matrix.py --write docs/reports/misuse.md build/*.fmu    # and the page docs/reliability.md includes
 
 tests/test_fmu_misuse.py runs every class on every shipped FMU.
 """
@@ -695,5 +696,23 @@ def table(fmu_paths) -> str:
     return "\n".join(lines + [""] + failures)
 
 
+def main(argv: list[str]) -> int:
+    """python tests/misuse_matrix.py [--write PAGE] FMU ...: the table; --write: also as a report page with its
+    provenance (docs/reports/misuse.md, which docs/reliability.md includes)."""
+    import time
+    from cedra.pages import load_average, provenance
+    page = None
+    if argv[:1] == ["--write"]:
+        page, argv = Path(argv[1]), argv[2:]
+    load, t0 = load_average(), time.time()
+    text = table(argv)
+    print(text)
+    if page is not None:
+        cmd = "python tests/misuse_matrix.py build/*.fmu"
+        page.write_text(f"# The misuse matrix\n\n{provenance(cmd, time.time() - t0, load)}\n\n{text}\n")
+    failed = any(line and not line.startswith(("|", "FMUs:")) for line in text.splitlines())   # a failure's line
+    return 1 if failed else 0
+
+
 if __name__ == "__main__":
-    print(table(sys.argv[1:]))
+    sys.exit(main(sys.argv[1:]))
