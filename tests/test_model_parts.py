@@ -54,7 +54,8 @@ def test_parts_equal_the_monolithic_form(scene):
     if m.multi_contact:
         kin = m.parts.kin
         flag = m.parts.contact.flag
-    for q in run_coordinates(scene, m, SECONDS.get(scene, min(sc.stop_time, 10.0))):
+    poses = run_coordinates(scene, m, SECONDS.get(scene, min(sc.stop_time, 10.0)))
+    for q in poses:
         u, a = rng.normal(0, 0.3, q.size), rng.normal(0, 1.0, q.size)
         # the settle residual f(q, 0) nearly vanishes at the run's poses (they are near equilibrium): it is held to
         # the generalized forces' own scale there, the forces at that pose and the random speeds
@@ -74,16 +75,14 @@ def test_parts_equal_the_monolithic_form(scene):
     print(f"{scene}: worst {worst:.1e} relative; {several} wheel samples in the three-slot form")
     if scene in SEVERAL:
         assert several > 0
+    if m.chassis:
+        _chassis_parts_equal_the_monolithic_form(scene, m, mono, parts, poses, inp, par)
 
 
-@pytest.mark.parametrize("scene", [s for s in COMPLIANT if load_shipped(s).options.chassis])
-def test_chassis_parts_equal_the_monolithic_form(scene):
+def _chassis_parts_equal_the_monolithic_form(scene, m, mono, parts, poses, inp, par):
     """cedra_fc and cedra_fcjac (the collision points' force and its Jacobian) at the run's poses and at the same
-    poses pushed into the terrain by up to 0.25 m, so that some of the body's and links' points touch."""
-    sc = load_shipped(scene)
-    m = sc.model()
-    spec = sc.spec(m)
-    mono, parts = m.functions(parts=False), m.functions()
+    poses pushed into the terrain by up to 0.25 m, so that some of the body's and links' points touch (in the same
+    test as the scene's other functions: forming the monolithic form is most of its cost)."""
     # each point's law and its group's part are one conditional call, taken only where the point touches; the
     # points fixed in the body share one part
     calls = [f"cedra_point_{g.name}" for g in m.chassis_groups for _ in g.points]
@@ -91,12 +90,10 @@ def test_chassis_parts_equal_the_monolithic_form(scene):
     assert [c + "_jac_touch" for c in calls] == [c for c in _calls(parts["cedra_fcjac"]) if c.endswith("_touch")
                                                  and c.startswith("cedra_point_")]
     assert sum(len(g.points) for g in m.chassis_groups if g.name == "body") >= 3
-    par = np.array([p.start for p in spec.params])
-    inp = np.array([p.start for p in spec.inputs])
     rng = np.random.default_rng(11)
     z = m.q_names.index("z")
     touched = 0
-    for q in run_coordinates(scene, m, SECONDS.get(scene, min(sc.stop_time, 10.0))):
+    for q in poses:
         for push in (0.0, rng.uniform(0.05, 0.25)):
             qq = q.copy()
             qq[z] -= push
