@@ -78,7 +78,7 @@ def casadi_library(functions: list[ca.Function], stem: str, flags=("-O1",), extr
             cg = ca.CodeGenerator(f"{fn.name()}.c", {"with_header": False})
             cg.add(fn)
             cg.generate(d + "/")
-            jobs.append(CompileJob(Path(d) / f"{fn.name()}.c", (*flags, "-fPIC")))
+            jobs.append(CompileJob(Path(d) / f"{fn.name()}.c", tuple(flags) + ("-fPIC",) * ("-fPIC" not in flags)))
         jobs += list(extra)
         lib = Path(out_dir or HOST_DIR) / f"lib{stem}_{source_key(jobs, *link_args)[:16]}.so"
         return link_library(jobs, lib, link_args)
