@@ -81,3 +81,18 @@ def test_importing_them_loads_no_compiler():
     r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                        env={**os.environ, "PYTHONPATH": str(PACKAGE.parent)}, check=True)
     assert r.stdout.strip() == ""
+
+
+def test_without_cedra_models_the_host_libraries_are_refused_by_name():
+    """Used alone, mechanics has no builder for its host libraries: it says which import provides one."""
+    probe = ("from cedra.mechanics import heightmap, rim\n"
+             "for call, error in ((heightmap.host_library, heightmap.HeightmapError),\n"
+             "                    (lambda: rim._library('int x;'), rim.RimBuildError)):\n"
+             "    try:\n"
+             "        call()\n"
+             "    except error as e:\n"
+             "        print(e)\n")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                       env={**os.environ, "PYTHONPATH": str(PACKAGE.parent)}, check=True)
+    lines = r.stdout.splitlines()
+    assert len(lines) == 2 and all("import cedra.models" in ln for ln in lines), r.stdout
