@@ -73,7 +73,7 @@ def _portable(serialized: str) -> bytes:
     another directory must get the same GUID. CasADi's serialization is its bytes written two letters a-p a byte,
     the low half first; a path is its 4-byte length followed by its bytes. The library's directory and the length
     go, its file name (a hash of its source) stays."""
-    from cedra.mechanics.rim import HOST_DIR
+    from cedra.models.host import HOST_DIR
     data = bytes(16 * (ord(hi) - 97) + ord(lo) - 97 for lo, hi in zip(serialized[::2], serialized[1::2]))
     for host in {str(HOST_DIR), str(HOST_DIR.resolve())}:
         data = re.sub(rb"(?s).{4}" + re.escape(host.encode()), b"<host>", data)

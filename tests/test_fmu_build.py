@@ -123,6 +123,7 @@ def test_guid_does_not_depend_on_the_checkouts_location(tmp_path, monkeypatch):
 
     from cedra.mechanics import rim
     from cedra.mechanics.terrain import Terrain, terrain_inputs
+    from cedra.models import host as host_libraries
     gen = fmu_mod._generator()
     library = rim._host(Terrain("bump", {n: ca.SX.sym(n) for n in terrain_inputs("bump", "2d")}))
     hashes, serialized = [], []
@@ -130,7 +131,7 @@ def test_guid_does_not_depend_on_the_checkouts_location(tmp_path, monkeypatch):
         host = tmp_path / checkout / "build" / "host"
         host.mkdir(parents=True)
         shutil.copy(library, host / library.name)
-        monkeypatch.setattr(rim, "HOST_DIR", host)
+        monkeypatch.setattr(host_libraries, "HOST_DIR", host)
         x = ca.MX.sym("x", 15)
         search = ca.external(rim.EXTERNAL_NAME, str(host / library.name))
         spec = toy_spec()

@@ -52,6 +52,7 @@ def main():
     ap.add_argument("--time", type=float, default=6.0)
     ap.add_argument("--keep", help="a directory to keep the state file, the driver and callgrind's outputs in")
     args = ap.parse_args()
+    from cedra.compile import CompileJob, link_program
     from cedra.models.scene import load_shipped
     sc = load_shipped(args.scene)
     spec = sc.spec()
@@ -82,13 +83,12 @@ def main():
             " ".join(repr(float(x)) for x in vec) for vec in (q, u, a, inp, par)) + "\n")
         exe = d / "eval_model"
         # the contact search of several contacts per wheel (rim.c) where the model calls it, as the FMU links it
-        extra = [str(src / "rim.c")] if (src / "rim.c").exists() else []
+        units = [HERE / "eval_model.c", *sorted(src.glob("cedra_*.c")), src / "heightmap.c"]
+        units += [src / "rim.c"] if (src / "rim.c").exists() else []
         has_switch = (src / "cedra_switch.c").exists()
-        extra += ["-DHAS_SWITCH"] if has_switch else []
-        subprocess.run(["gcc", "-std=c99", "-O2", "-I", str(src), "-Wno-unused-parameter", str(HERE / "eval_model.c"),
-                        *sorted(str(f) for f in src.glob("cedra_*.c")), str(src / "heightmap.c"), *extra, "-o",
-                        str(exe), "-lm"],
-                       check=True)
+        flags = ("-std=c99", "-O2", "-Wno-unused-parameter") + (("-DHAS_SWITCH",) if has_switch else ())
+        exe.unlink(missing_ok=True)                 # a kept directory's driver is linked again
+        link_program([CompileJob(u, flags, src) for u in units], exe)      # in parallel, through the object cache
         grid = str(sc.options.heightmap) if sc.options.heightmap else "-"
         print(f"{args.scene}: state at t = {args.time} s: " + ", ".join(f"{k} {x:.4g}" for k, x in vals.items()))
         for fn in ("f", "rjac") + (("switch",) if has_switch else ()) + ("out", "M"):

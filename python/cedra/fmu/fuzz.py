@@ -23,16 +23,15 @@ import sys
 import tempfile
 import time
 import zipfile
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from cedra.compile import CC, CompileError, CompileJob, compile_objects, run
 from cedra.fmu.codegen import GENERATED_CFLAGS_RELAX, is_generated
 from cedra.fmu.packaging import REPO_ROOT
 
 FUZZ_C = REPO_ROOT / "tools" / "fuzz" / "fmu_fuzz.c"
 CACHE = REPO_ROOT / "build" / "fuzz"
-CC = "gcc"
 SANITIZE = ["-fsanitize=address,undefined,float-cast-overflow", "-fno-sanitize-recover=all",
             "-fno-omit-frame-pointer"]
 VARIANTS = {
@@ -72,10 +71,19 @@ def _model_name(z: zipfile.ZipFile, fmu: Path) -> str:
     return m.group(1).decode() if m else fmu.stem
 
 
-def _compile(cmd, cwd):
-    r = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise FuzzBuildError(f"{' '.join(map(str, cmd))} failed (rc {r.returncode}):\n{r.stdout}{r.stderr}")
+def _compile(jobs: list[CompileJob], obj_dir: Path) -> list[Path]:
+    """The jobs' objects in obj_dir (cedra.compile: in parallel, through the object cache)."""
+    try:
+        return compile_objects(jobs, obj_dir)
+    except CompileError as e:
+        raise FuzzBuildError(str(e)) from None
+
+
+def _link(cmd):
+    try:
+        run(cmd)
+    except CompileError as e:
+        raise FuzzBuildError(str(e)) from None
 
 
 def _locked_build(out: Path, make) -> Path:
@@ -127,23 +135,19 @@ def build(fmu, variant: str = "asan", defines=(), cache=CACHE) -> Path:
         for name, data in sources.items():
             (src / name).write_bytes(data)
 
-        def obj(name):
+        def job(name):
             extra = GENERATED_CFLAGS_RELAX + ["-DCASADI_SYMBOL_EXPORT="] if is_generated(name) else []
-            _compile([CC, *FMU_CFLAGS, *flags, *extra, "-I", str(src), "-c", str(src / name), "-o",
-                      str(tmp / (Path(name).stem + ".o"))], tmp)
+            return CompileJob(src / name, (*FMU_CFLAGS, *flags, *extra), src)
 
-        with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
-            for f in [pool.submit(obj, n) for n in cfiles]:
-                f.result()
+        _compile([job(n) for n in cfiles], tmp)
 
     objdir = _locked_build(root / f"obj-{variant}-{src_key[:16]}", make_objects)
 
     def make_exe(tmp: Path):
-        o = tmp / "fmu_fuzz.o"
-        _compile([CC, *FUZZER_CFLAGS, *flags, *(f"-D{d}" for d in defines), "-I", str(objdir / "sources"), "-c",
-                  str(FUZZ_C), "-o", str(o)], tmp)
+        [o] = _compile([CompileJob(FUZZ_C, (*FUZZER_CFLAGS, *flags, *(f"-D{d}" for d in defines)),
+                                   objdir / "sources")], tmp)
         objects = [str(objdir / (Path(n).stem + ".o")) for n in cfiles]
-        _compile([CC, *flags, "-o", str(tmp / "fmu_fuzz"), str(o), *objects, "-lm", "-pthread"], tmp)
+        _link([CC, *flags, "-o", str(tmp / "fmu_fuzz"), str(o), *objects, "-lm", "-pthread"])
         o.unlink()
 
     return _locked_build(root / f"{tag}-{h.hexdigest()[:16]}", make_exe) / "fmu_fuzz"

@@ -7,6 +7,10 @@ terrain (CasADi external functions: a wheel's contact point with its derivatives
 points with Jacobians to third order, cedra_heightmap), tests can evaluate it, and a scene's heightmap is
 validated before any code is generated.
 
+This module compiles nothing (as cedra.mechanics.rim, whose docstring says why): cedra.models hands it the host
+library's builder when it is imported (set_library_builder; cedra.models.host), and asking for the library with
+no builder set raises HeightmapError saying so.
+
 The host library holds ONE process-wide map (the last one loaded), active in the thread that loaded it: the
 Python-side model functions of a heightmap scene evaluate whichever map was loaded last.
 
@@ -17,19 +21,13 @@ and yields 0 there. The generated C code does check it: the FMU stops with fmi2D
 from __future__ import annotations
 
 import ctypes
-import hashlib
-import os
-import subprocess
-import tempfile
 from functools import lru_cache
 from pathlib import Path
+from typing import Callable
 
 import casadi as ca
 import numpy as np
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
-SOURCE = REPO_ROOT / "fmu_src" / "heightmap.c"
-HOST_DIR = REPO_ROOT / "build" / "host"
 EXTERNAL_NAME = "cedra_heightmap"
 RIM_EXTERNAL_NAME = "cedra_rim_contact"
 RIM_POINT_EXTERNAL_NAME = "cedra_rim_point"        # the same without the Jacobian
@@ -55,23 +53,24 @@ def write(path, Z, x0: float, y0: float, dx: float, dy: float, comment: str = ""
     return path
 
 
+_builder: Callable[[], Path] | None = None
+
+
+def set_library_builder(build: Callable[[], Path]) -> None:
+    """Who builds the host library: build() -> the path of fmu_src/heightmap.c compiled as a shared library with
+    CEDRA_HEIGHTMAP_HOST (cedra.models.host sets it at the import of cedra.models)."""
+    global _builder
+    _builder = build
+    host_library.cache_clear()
+
+
 @lru_cache(maxsize=None)
 def host_library() -> Path:
-    """fmu_src/heightmap.c compiled for this process (cached by the source's hash under build/host/)."""
-    src = SOURCE.read_bytes()
-    lib = HOST_DIR / f"libcedra_heightmap_{hashlib.sha256(src).hexdigest()[:16]}.so"
-    if not lib.exists():
-        HOST_DIR.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(suffix=".so", dir=HOST_DIR)     # parallel test workers: build, then rename
-        os.close(fd)
-        cmd = ["gcc", "-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror", "-DCEDRA_HEIGHTMAP_HOST",
-               str(SOURCE), "-o", tmp, "-lm"]
-        r = subprocess.run(cmd, capture_output=True, text=True)
-        if r.returncode != 0:
-            os.unlink(tmp)
-            raise HeightmapError(f"compiling {SOURCE} failed:\n{r.stderr}")
-        os.replace(tmp, lib)
-    return lib
+    """fmu_src/heightmap.c compiled for this process (the builder's library, one per source)."""
+    if _builder is None:
+        raise HeightmapError("the heightmap's host library has no builder: import cedra.models first (it sets "
+                             "cedra.mechanics.heightmap.set_library_builder)")
+    return _builder()
 
 
 @lru_cache(maxsize=None)

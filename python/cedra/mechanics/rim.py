@@ -2,18 +2,24 @@
 
 The FMU compiles fmu_src/rim.c with the scene's generated cedra_terrain (the contract). The symbolic model calls
 the same search as a CasADi external function, cedra_rim_search, from a small host library: the scene's
-cedra_terrain generated to C and compiled with rim.c (cached under build/host/ by a hash of both sources). One
-implementation of the search for the FMU, the Python-side model and the tests. The search makes only discrete
-choices and converged angles, so the model never differentiates it (cedra.mechanics.contact.rim_contacts)."""
+cedra_terrain generated to C (here) and compiled with rim.c. One implementation of the search for the FMU, the
+Python-side model and the tests. The search makes only discrete choices and converged angles, so the model never
+differentiates it (cedra.mechanics.contact.rim_contacts).
+
+This module compiles nothing. Compiling is the business of the layers that know the build (the compile helper
+cedra.compile, its object cache and build directories); mechanics sits below them and names no build tree, so it
+asks a builder for the library: `set_library_builder(build)`, which cedra.models sets when it is imported
+(cedra.models.host: build(terrain C, on_heightmap, refine) -> the library's path). Asking for the library with no
+builder set raises RimBuildError saying so. A builder handed in from above, rather than a compile call made
+through a low-level helper, keeps this package free of compilers and subprocesses altogether
+(tests/test_layers.py checks it)."""
 from __future__ import annotations
 
 import ctypes
-import hashlib
-import os
-import subprocess
 import tempfile
 from functools import lru_cache
 from pathlib import Path
+from typing import Callable
 
 import casadi as ca
 import numpy as np
@@ -23,9 +29,6 @@ from cedra.mechanics import heightmap
 from cedra.mechanics.contact import rim_samples_function
 from cedra.mechanics.terrain import Terrain
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
-SOURCE = REPO_ROOT / "fmu_src" / "rim.c"
-HOST_DIR = REPO_ROOT / "build" / "host"
 EXTERNAL_NAME = "cedra_rim_search"
 N_RESULT = 8            # [beta of maxima 1..3, beta of saddles 1..2, presence of maxima 1..3]
 ONE_MAXIMUM = {1: 0, 2: 0, 3: 0, 4: 0, 5: 1, 6: 0, 7: 0}     # the results where the search finds one maximum
@@ -46,42 +49,28 @@ def _terrain_c(terrain: Terrain) -> str:
         return (Path(d) / "cedra_terrain_host.c").read_text()
 
 
+_builder: Callable[[str, bool, bool], Path] | None = None
+
+
+def set_library_builder(build: Callable[[str, bool, bool], Path]) -> None:
+    """Who builds the search's host library: build(terrain C, on_heightmap, refine) -> the shared library's path
+    (cedra.models.host sets it at the import of cedra.models)."""
+    global _builder
+    _builder = build
+    _library.cache_clear()
+
+
 @lru_cache(maxsize=None)
 def _library(code: str, on_heightmap: bool = False, refine: bool = False) -> Path:
-    """rim.c and the terrain's generated code as a shared library. on_heightmap: the terrain calls the heightmap's
-    external functions, which this library takes from the heightmap's host library (the one process-wide map,
-    cedra.mechanics.heightmap), and a rim proven to have one maximum returns its presence flags alone, as in a
-    heightmap scene's FMU (CEDRA_HEIGHTMAP: the model takes that maximum from the heightmap's own search).
-    refine: every arc near touching sampled again (CEDRA_RIM_REFINE). No memo here (RIM_HOST)."""
-    rim = SOURCE.read_bytes()
-    extra = ["-DRIM_HOST", f"-DCEDRA_HEIGHTMAP={int(on_heightmap)}", f"-DCEDRA_RIM_REFINE={int(refine)}"]
-    if on_heightmap:
-        hm = heightmap.host_library()
-        extra += [str(hm), f"-Wl,-rpath,{hm.parent}"]
-    # the key names the heightmap's library by its file name (a hash of its source), not its directory: the same
-    # model formed in two checkouts gets the same library name, and the GUID (which hashes it) stays the same
-    named = [f"-DCEDRA_HEIGHTMAP={int(on_heightmap)}", f"-DCEDRA_RIM_REFINE={int(refine)}"]
-    if on_heightmap:
-        named.append(hm.name)
-    key = rim + code.encode() + " ".join(named).encode()
-    lib = HOST_DIR / f"libcedra_rim_{hashlib.sha256(key).hexdigest()[:16]}.so"
-    if not lib.exists():
-        HOST_DIR.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory() as d:
-            src = Path(d) / "cedra_terrain_host.c"
-            src.write_text(code)
-            fd, tmp = tempfile.mkstemp(suffix=".so", dir=HOST_DIR)     # parallel test workers: build, then rename
-            os.close(fd)
-            # -Bsymbolic: rim.c calls this library's own cedra_terrain, whatever other library is loaded
-            cmd = ["gcc", "-std=c99", "-O2", "-fPIC", "-shared", "-Wl,-Bsymbolic", "-Wall", "-Wextra", "-Werror",
-                   "-Wno-unused-parameter", "-Wno-unused-variable", "-Wno-unused-function",
-                   "-Wno-unused-but-set-variable", "-Wno-sign-compare", str(SOURCE), str(src), "-o", tmp, *extra, "-lm"]
-            r = subprocess.run(cmd, capture_output=True, text=True)
-            if r.returncode != 0:
-                os.unlink(tmp)
-                raise RimBuildError(f"compiling {SOURCE} failed:\n{r.stderr}")
-            os.replace(tmp, lib)
-    return lib
+    """rim.c and the terrain's generated code as a shared library (the builder's). on_heightmap: the terrain calls
+    the heightmap's external functions, which this library takes from the heightmap's host library (the one
+    process-wide map, cedra.mechanics.heightmap), and a rim proven to have one maximum returns its presence flags
+    alone, as in a heightmap scene's FMU (CEDRA_HEIGHTMAP: the model takes that maximum from the heightmap's own
+    search). refine: every arc near touching sampled again (CEDRA_RIM_REFINE)."""
+    if _builder is None:
+        raise RimBuildError("the contact search's host library has no builder: import cedra.models first (it sets "
+                            "cedra.mechanics.rim.set_library_builder)")
+    return _builder(code, on_heightmap, refine)
 
 
 def _host(terrain: Terrain, refine: bool = False) -> Path:

@@ -2,8 +2,8 @@
 torque decisions and the problem's constant inputs and parameters.
 
 The ODE [u; M^-1 f] is formed from the model's own symbolic M and f (with the collision points' force cedra_fc
-where the scene has chassis contact), generated to C with its Jacobian and compiled once per model (cached under
-build/host/), as the FMU is. The contact search (cedra_rim_search, the FMU's C search) makes discrete choices and
+where the scene has chassis contact), generated to C with its Jacobian, one file per function as the FMU's, and compiled once per model
+(cedra.models.host.casadi_library: in parallel, through the object cache; the library under build/host/). The contact search (cedra_rim_search, the FMU's C search) makes discrete choices and
 returns converged angles: the model never differentiates it (cedra.mechanics.contact.rim_contacts), and neither
 does the optimizer (casadi.stop_diff on its results). Second derivatives of the equations are not formed. The
 wheels' spin angles enter no force, so the shooting state leaves them out (14 of the model's 18 states).
@@ -24,14 +24,12 @@ continuation stage; the FMUs are generated without it. The replay integrates the
 width > 0 its deviation from the optimizer's path measures the smoothing too (docs/optimize.md)."""
 from __future__ import annotations
 
-import hashlib
-import subprocess
-import time
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
+from cedra.models.host import casadi_library
 from cedra.models.scene import load_shipped
 from cedra.optimize.problem import REPLAY_STEP, Problem
 
@@ -42,22 +40,11 @@ SPEED_MAX = 20.0             # m/s, rad/s: bound of the other rates at the nodes
 
 
 def _compiled(functions: list[ca.Function], stem: str) -> Path:
-    """The functions as C (CasADi's code generator) in one shared library, compiled once per generated source."""
-    from cedra.mechanics.rim import HOST_DIR
-    cg = ca.CodeGenerator(f"{stem}.c", {"with_header": False})
-    for fn in functions:
-        cg.add(fn)
-    code = cg.dump()
-    lib = HOST_DIR / f"lib{stem}_{hashlib.sha256(code.encode()).hexdigest()[:16]}.so"
-    if not lib.exists():
-        HOST_DIR.mkdir(parents=True, exist_ok=True)
-        src = lib.with_suffix(".c")
-        src.write_text(code)
-        tmp = lib.with_suffix(f".{time.time_ns()}.tmp")       # parallel builds: compile, then rename
-        subprocess.run(["gcc", "-O1", "-fPIC", "-shared", str(src), "-o", str(tmp), "-lm"], check=True,
-                       capture_output=True)
-        tmp.replace(lib)
-    return lib
+    """The functions as C (CasADi's code generator, one file each) in one shared library, each file compiled once.
+    -O1: bump2d's Jacobian is one 3.2 MB file, about 85 s of gcc at -O1 and 18 s at -O0, but the -O0 Jacobian takes
+    twice as long per evaluation (620 against 320 us), and the integrator's sensitivities evaluate it at every
+    step."""
+    return casadi_library(functions, stem, ("-O1",))
 
 
 class Dynamics:

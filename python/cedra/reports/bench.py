@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import math
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -37,29 +36,26 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from cedra.compile import CompileJob, link_library
+from cedra.models.host import casadi_library
 from cedra.reports.common import SOLVER_CODES, fmu_closed_loop, fmu_path
 
 SCENES = ("bump2d", "flat3d")
-CFLAGS = ["-O2", "-fPIC", "-shared", "-fno-math-errno"]
+CFLAGS = ("-O2", "-fPIC", "-fno-math-errno")
 RIM_FUNCTIONS = ("cedra_terrain", "cedra_rim_samples", "cedra_terrain_bounds")    # what fmu_src/rim.c calls
 RIM_SOURCE = Path(__file__).resolve().parents[3] / "fmu_src" / "rim.c"
 
 
 def compile_functions(fns: dict, names, workdir: Path, rim_refine: bool = False) -> dict:
-    """The named CasADi functions as C (CasADi's code generator), compiled with gcc into one shared library,
-    loaded back with casadi.external. A scene with an analytic terrain's contact search (the functions call
-    cedra_rim_search) gets fmu_src/rim.c and the terrain functions it calls linked in, as its FMU does (without
-    the FMU's memo of searches: RIM_HOST; rim_refine as in the scene's FMU). Heightmap scenes are not supported
-    (their terrain is the FMU's)."""
+    """The named CasADi functions as C (CasADi's code generator, one file each), compiled (cedra.compile: in
+    parallel, through the object cache) into one shared library, loaded back with casadi.external. A scene with
+    an analytic terrain's contact search (the functions call cedra_rim_search) gets fmu_src/rim.c and the terrain
+    functions it calls linked in, as its FMU does (without the FMU's memo of searches: RIM_HOST; rim_refine as in
+    the scene's FMU). Heightmap scenes are not supported (their terrain is the FMU's)."""
     rim = [n for n in RIM_FUNCTIONS if n in fns]
-    cg = ca.CodeGenerator("bench_fns.c", {"with_header": False})
-    for n in list(names) + rim:
-        cg.add(fns[n])
-    src = Path(cg.generate(str(workdir) + "/"))
-    lib = workdir / "bench_fns.so"
-    extra = ["-DRIM_HOST", "-DCEDRA_HEIGHTMAP=0", f"-DCEDRA_RIM_REFINE={int(rim_refine)}", str(RIM_SOURCE)] \
-        if rim else []
-    subprocess.run(["gcc", *CFLAGS, str(src), *extra, "-o", str(lib), "-lm"], check=True, capture_output=True)
+    extra = [CompileJob(RIM_SOURCE, (*CFLAGS, "-DRIM_HOST", "-DCEDRA_HEIGHTMAP=0",
+                                     f"-DCEDRA_RIM_REFINE={int(rim_refine)}"))] if rim else []
+    lib = casadi_library([fns[n] for n in list(names) + rim], "bench_fns", CFLAGS, extra, out_dir=workdir)
     return {n: ca.external(n, str(lib)) for n in names}
 
 
@@ -195,9 +191,8 @@ def stage_cost(prob, workdir: Path) -> dict:
     root = Path(__file__).resolve().parents[3] / "fmu_src"
     src = workdir / "stage.c"
     src.write_text(STAGE_C)
-    lib = workdir / "stage.so"
-    subprocess.run(["gcc", "-O2", "-fPIC", "-shared", f"-I{root}", str(src), str(root / "solver.c"),
-                    str(root / "linalg.c"), "-o", str(lib), "-lm"], check=True, capture_output=True)
+    lib = link_library([CompileJob(s, ("-O2", "-fPIC"), root) for s in (src, root / "solver.c", root / "linalg.c")],
+                       workdir / "stage.so")
     so = ctypes.CDLL(str(lib))
     so.stage_seconds.restype = ctypes.c_double
     so.stage_seconds.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.POINTER(ctypes.c_double), ctypes.c_int]
