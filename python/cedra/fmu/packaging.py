@@ -221,8 +221,8 @@ def build_fmu(spec: ModelSpec, build_dir, extra_cflags=(), jobs: int | None = No
 
 # what forms an FMU: the packages that form the model and write the FMU (not run/, reports/ or the CLI, whose
 # changes leave every FMU as it was), the hand-written C and the model-description writer
-_STAMP_SOURCES = ("python/cedra/contract.py", "python/cedra/compile.py", "python/cedra/__init__.py", "python/cedra/mechanics",
-                  "python/cedra/rover", "python/cedra/models", "python/cedra/fmu", "fmu_src",
+_STAMP_SOURCES = ("python/cedra/contract.py", "python/cedra/compile.py", "python/cedra/__init__.py",
+                  "python/cedra/mechanics", "python/cedra/rover", "python/cedra/models", "python/cedra/fmu", "fmu_src",
                   "modelDescription/generate.py", "pyproject.toml")
 STAMP_SUFFIX = ".stamp"
 
