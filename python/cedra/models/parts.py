@@ -398,8 +398,9 @@ class ModelParts:
                 name = f"cedra_part_chassis_{g.name}"
                 force = ca.Function(f"cedra_point_{g.name}", [qs, ps] + extra_s + [ws, xs, inps],
                                     [use(name)(qs, ps, *extra_s, ws, use("cedra_part_point")(xs, inps, ps))])
+                # both branches with the part's sparsity (a conditional call's derivatives need them equal)
                 none = ca.Function(f"cedra_point_{g.name}_none", [qs, ps] + extra_s + [ws, xs, inps],
-                                   [ca.MX.zeros(n, 1)])
+                                   [ca.MX(self.part_functions[name].sparsity_out(0), 0)])
             touch = ca.Function.if_else(force.name() + "_touch", force, none)
             local = ca.Function(f"cedra_point_{g.name}_local", [self.m.par], [g.local])(par) \
                 if g.body is not None else None
