@@ -114,3 +114,30 @@ def test_the_wheel_part_is_formed_once():
     names = _calls(m.functions()["cedra_rjac"])
     assert names.count("cedra_part_wheel_jac_forms") == 6, names
     assert rim.N_RESULT == P.wrench.size1_in(1)
+
+
+@pytest.mark.parametrize("scene", ["stairs2d", "stairs3d", "rb_stairs3d"])
+def test_a_point_grouped_in_a_body_moves_with_it_at_other_parameters(scene):
+    """Each collision point of a body's group is o + R r at poses, speeds and parameter values other than those the
+    grouping was checked at (its position and velocity against the description's own, to 1e-12 m): the fork's
+    joint, which meets the fork's mass point only where fork_mass_at = 0, is a group of its own."""
+    m = load_shipped(scene).model()
+    planar = m.opt.dims == "2d"
+    points = [pt for pt in m.rover.collision_points if (pt.planar_weight if planar else 1) != 0]
+    rng = np.random.default_rng(5)
+    par0 = m.default_par()
+    grouped = 0
+    for g in m.chassis_groups:
+        if g.body is None:
+            continue
+        for k, j in enumerate(g.points):
+            arm = g.body.inertia_frame @ g.local[:, k]
+            err = ca.Function("err", [m.q, m.u, m.par], [ca.vertcat(
+                points[j].position - g.body.position - arm,
+                m.rate(points[j].position) - m.rate(g.body.position) - ca.cross(g.body.omega, arm))])
+            for _ in range(2):
+                par = par0 * (1 + 0.2 * rng.uniform(-1, 1, par0.size)) + 0.02 * rng.uniform(-1, 1, par0.size)
+                e = np.array(err(rng.uniform(-0.8, 0.8, m.q.numel()), rng.normal(0, 1, m.q.numel()), par))
+                assert np.max(np.abs(e)) <= 1e-12, (scene, j)
+            grouped += 1
+    assert grouped >= 10
