@@ -70,22 +70,38 @@ class Skeleton:
         return np.stack([self.point(f"c{i}") for i in range(1, 7)], axis=1)
 
 
-def _function() -> ca.Function:
-    q = {n: ca.SX.sym(n) for n in COORDS}
+def _symbols(coords, params):
+    """A drawing's symbols: the coordinates and parameters by name, the wheels' spin angles, the body's rotation R
+    and world(v), a body-frame point in the world."""
+    q = {n: ca.SX.sym(n) for n in coords}
     gam = ca.SX.sym("gamma", 6)
-    p = {n: ca.SX.sym(n) for n in PARAMS}
+    p = {n: ca.SX.sym(n) for n in params}
     R = rot_z(q["body.yaw"]) @ rot_y(q["body.pitch"]) @ rot_x(q["body.roll"])
     origin = ca.vertcat(q["body.x"], q["body.y"], q["body.z"])
+    return q, gam, p, R, lambda v: origin + R @ v
 
-    def world(v):
-        return origin + R @ v
 
-    xmin, xmax = p["rear_x"], p["fork_bx"]
-    zmin, zmax = p["fork_az"], p["fork_bz"] + 0.03
+def _box(world, x, y, z) -> dict:
+    """The body's box corners box0..box7 from its (low, high) extents along the body's x, y and z."""
+    return {f"box{k}": world(ca.vertcat(x[k & 1], y[(k >> 1) & 1], z[(k >> 2) & 1])) for k in range(8)}
+
+
+def _skeleton(name, q, gam, p, R, pts, wheels, frames, names) -> ca.Function:
+    """(coordinates, spin angles, parameters) -> (the points `names`, the wheel centres c1..c6 among them; the
+    wheels' axles; their spokes; R), each wheel's frame in `frames` (its axle the frame's y axis)."""
+    for i in range(1, 7):
+        pts[f"c{i}"] = wheels[i]
+    points = ca.horzcat(*[pts[n] for n in names])
+    axles = ca.horzcat(*[frames[i] @ ca.DM([0, 1, 0]) for i in range(1, 7)])
+    spokes = ca.horzcat(*[frames[i] @ rot_y(gam[i - 1]) @ ca.DM([1, 0, 0]) for i in range(1, 7)])
+    return ca.Function(name, [ca.vertcat(*q.values()), gam, ca.vertcat(*p.values())], [points, axles, spokes, R])
+
+
+def _function() -> ca.Function:
+    q, gam, p, R, world = _symbols(COORDS, PARAMS)
+    zmin = p["fork_az"]
     half = 0.6 * p["bogie_y"]
-    box = [world(ca.vertcat(xmax if k & 1 else xmin, half if k & 2 else -half, zmax if k & 4 else zmin))
-           for k in range(8)]
-    pts = {f"box{k}": b for k, b in enumerate(box)}
+    pts = _box(world, (p["rear_x"], p["fork_bx"]), (-half, half), (zmin, p["fork_bz"] + 0.03))
     wheels, frames = {}, {}
     bogies = ((1, q["bogie.theta[1]"], (1, 2), "L"), (-1, q["bogie.theta[2]"], (3, 4), "R"))
     for side, th, (front, rear), name in bogies:
@@ -108,13 +124,7 @@ def _function() -> ca.Function:
     pts["D"] = world(C + p["fork_c"] * s)
     wheels[6] = world(C - p["fork_wheel"] * s)
     frames[6] = R @ Rc @ rot_x(q["steer.theta[2]"])
-    for i in range(1, 7):
-        pts[f"c{i}"] = wheels[i]
-    points = ca.horzcat(*[pts[n] for n in POINTS])
-    axles = ca.horzcat(*[frames[i] @ ca.DM([0, 1, 0]) for i in range(1, 7)])
-    spokes = ca.horzcat(*[frames[i] @ rot_y(gam[i - 1]) @ ca.DM([1, 0, 0]) for i in range(1, 7)])
-    return ca.Function("skeleton", [ca.vertcat(*q.values()), gam, ca.vertcat(*p.values())],
-                       [points, axles, spokes, R])
+    return _skeleton("skeleton", q, gam, p, R, pts, wheels, frames, POINTS)
 
 
 # ---------------------------------------------------------------- the rocker-bogie's drawing
@@ -129,20 +139,9 @@ RB_NEEDED = ["body.x", "body.z", "body.pitch", "rocker.rho", "bogie.beta[1]"] + 
 
 
 def _rb_function() -> ca.Function:
-    q = {n: ca.SX.sym(n) for n in RB_COORDS}
-    gam = ca.SX.sym("gamma", 6)
-    p = {n: ca.SX.sym(n) for n in RB_PARAMS}
-    R = rot_z(q["body.yaw"]) @ rot_y(q["body.pitch"]) @ rot_x(q["body.roll"])
-    origin = ca.vertcat(q["body.x"], q["body.y"], q["body.z"])
-
-    def world(v):
-        return origin + R @ v
-
+    q, gam, p, R, world = _symbols(RB_COORDS, RB_PARAMS)
     xs, ys = rocker_bogie.BODY_BOX_X, rocker_bogie.BODY_BOX_Y
-    zmin, zmax = rocker_bogie.BODY_FLOOR_Z, rocker_bogie.BODY_FACE_Z[-1]
-    box = [world(ca.vertcat(xs[-1] if k & 1 else xs[0], ys[-1] if k & 2 else ys[0], zmax if k & 4 else zmin))
-           for k in range(8)]
-    pts = {f"box{k}": b for k, b in enumerate(box)}
+    pts = _box(world, (xs[0], xs[-1]), (ys[0], ys[-1]), (rocker_bogie.BODY_FLOOR_Z, rocker_bogie.BODY_FACE_Z[-1]))
     wheels, frames = {}, {}
     lift = rocker_bogie.lift
     for side, r, b, first, name in ((1, q["rocker.rho"], q["bogie.beta[1]"], 1, "L"),
@@ -157,13 +156,7 @@ def _rb_function() -> ca.Function:
         wheels[first + 2] = world(P + lift(r + b) @ ca.vertcat(-p["bogie_half"], 0, -p["bogie_drop"]))
         frames[first] = R @ lift(r)                         # a wheel spins relative to its carrier
         frames[first + 1] = frames[first + 2] = R @ lift(r + b)
-    for i in range(1, 7):
-        pts[f"c{i}"] = wheels[i]
-    points = ca.horzcat(*[pts[n] for n in RB_POINTS])
-    axles = ca.horzcat(*[frames[i] @ ca.DM([0, 1, 0]) for i in range(1, 7)])
-    spokes = ca.horzcat(*[frames[i] @ rot_y(gam[i - 1]) @ ca.DM([1, 0, 0]) for i in range(1, 7)])
-    return ca.Function("rb_skeleton", [ca.vertcat(*q.values()), gam, ca.vertcat(*p.values())],
-                       [points, axles, spokes, R])
+    return _skeleton("rb_skeleton", q, gam, p, R, pts, wheels, frames, RB_POINTS)
 
 
 @dataclass(frozen=True)
