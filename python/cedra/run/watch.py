@@ -21,6 +21,7 @@ so a run records what WATCHED names and nothing is recomputed from a second copy
 """
 from __future__ import annotations
 
+import importlib
 import json
 import shutil
 import tempfile
@@ -33,6 +34,9 @@ import numpy as np
 
 from cedra.rover.parameters import DEFAULTS
 from cedra.rover.skeleton import BOX_FACES, skeleton
+
+# a heightmap run's terrain is drawn with cedra.mechanics' heightmap library, whose builder cedra.models hands it
+importlib.import_module("cedra.models")
 
 FPS = 10                    # animation frames per simulated second (GIF frame times are in 10 ms: 100 ms)
 VIEW_FPS = 15               # samples per simulated second embedded in view.html (the page interpolates)
